@@ -1,0 +1,5 @@
+import sys
+
+from leaffit_usd.cli import main
+
+sys.exit(main())

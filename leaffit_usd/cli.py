@@ -1,0 +1,98 @@
+"""The ``leaffit-usd`` command.
+
+Each subcommand lives in its own module under ``leaffit_usd/commands/`` and exposes
+``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int``; they are discovered here,
+so adding a command touches no other file.
+
+Exit codes: 0 success; 2 bad input or usage (one line on stderr, no traceback); 1 internal error.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import os
+import pkgutil
+import sys
+
+from leaffit_usd import __version__
+from leaffit_usd.errors import UserError
+
+log = logging.getLogger("leaffit_usd")
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports usage errors as one line and exit code 2."""
+
+    def error(self, message):  # noqa: D401 - argparse API
+        sys.stderr.write(f"{self.prog}: error: {message} (see --help)\n")
+        raise SystemExit(2)
+
+
+def _commands():
+    import leaffit_usd.commands as pkg
+
+    mods = []
+    for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda i: i.name):
+        if not info.name.startswith("_"):
+            mods.append(importlib.import_module(f"{pkg.__name__}.{info.name}"))
+    return sorted(mods, key=lambda m: getattr(m, "ORDER", 50))
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="leaffit-usd",
+        description="Turn a 3D Gaussian Splatting capture of a plant into a compact, editable "
+                    "USD asset: one template leaf mesh, per-leaf MLS control points, a stem.",
+        epilog="Typical use:  leaffit-usd convert plant.ply -o plant.usda\n"
+               "Run 'leaffit-usd COMMAND --help' for a command's options.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"leaffit-usd {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    for mod in _commands():
+        p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        p.add_argument("-q", "--quiet", action="store_true", help="print only warnings and errors")
+        p.add_argument("--debug", action="store_true", help="show tracebacks for internal errors")
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+class _OneLine(logging.Formatter):
+    def format(self, record):
+        msg = record.getMessage()
+        return msg if record.levelno < logging.WARNING else f"{record.levelname.lower()}: {msg}"
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "command", None):
+        parser.print_help()
+        return 2
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_OneLine())
+    log.handlers[:] = [handler]
+    log.setLevel(logging.WARNING if args.quiet else logging.INFO)
+    log.propagate = False
+    debug = args.debug or os.environ.get("LEAFFIT_DEBUG") == "1"
+    try:
+        return int(args._run(args) or 0)
+    except UserError as e:
+        sys.stderr.write(f"leaffit-usd {args.command}: error: {e}\n")
+        return 2
+    except KeyboardInterrupt:
+        sys.stderr.write("leaffit-usd: interrupted\n")
+        return 130
+    except Exception as e:  # internal error: one line unless --debug
+        if debug:
+            raise
+        sys.stderr.write(f"leaffit-usd {args.command}: internal error: {type(e).__name__}: {e} "
+                         f"(rerun with --debug for a traceback)\n")
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Leaf registration: denoising, PCA frames, control points, differentiable MLS fitting."""

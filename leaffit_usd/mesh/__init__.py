@@ -1,0 +1,1 @@
+"""Template leaf mesh extraction, UVs and two-sided texture bake, stem cylinders."""

@@ -1,0 +1,56 @@
+"""Values produced by ``mesh``: the template leaf mesh with its two textures, and the stem."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class TemplateMesh:
+    """The two-sided template leaf, template local frame (see ``fit.result``), working units.
+
+    points : (V, 3) float32, vertices; the front copy is points[:V/2], the back copy points[V/2:]
+        (duplicated per side so each side has its own UVs and split normals)
+    faces : (F, 3) int32, triangles; front faces wind counter-clockwise seen from +Z
+    normals : (V, 3) float32, per-vertex normals (front +Z-ish, back -Z-ish)
+    uvs : (V, 2) float32, texture coordinates in [0, 1]^2 (see the UV convention below)
+    side : (V,) uint8, 0 = front vertex, 1 = back vertex
+    front_texture, back_texture : (H, W, 4) uint8 RGBA images (straight alpha), row 0 = top (v = 1)
+    sheet_points, sheet_faces : the single-sheet mesh before duplication ((S, 3), (G, 3))
+    report : quality figures (counts, distances, holes, coverage)
+
+    UV convention: each side has its own texture; ``uvs`` of front vertices index
+    ``front_texture`` and of back vertices ``back_texture``. USD's st has v up, so texel row
+    r covers v in [1 - (r+1)/H, 1 - r/H].
+    """
+
+    points: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray
+    uvs: np.ndarray
+    side: np.ndarray
+    front_texture: np.ndarray
+    back_texture: np.ndarray
+    sheet_points: np.ndarray
+    sheet_faces: np.ndarray
+    report: dict = field(default_factory=dict)
+
+
+@dataclass
+class Stem:
+    """Stem cylinders from the rootward tree, working frame.
+
+    starts, ends : (E, 3) float32, axis end points of each cylinder
+    radii_start, radii_end : (E,) float32, radii at each end (Leonardo's rule), working units
+    parent : (E,) int64, index of the parent cylinder (-1 at the root)
+    points, faces : the triangle mesh of all cylinders and joint spheres ((P, 3) float32, (F, 3) int32)
+    """
+
+    starts: np.ndarray
+    ends: np.ndarray
+    radii_start: np.ndarray
+    radii_end: np.ndarray
+    parent: np.ndarray
+    points: np.ndarray
+    faces: np.ndarray
