@@ -1,0 +1,58 @@
+"""The PlantAsset value: everything a LeafFit USD stage holds, as arrays (asset frame).
+
+``usd.writer`` writes it, ``usd.reader`` reads it back, ``runtime`` evaluates it. Instance
+transforms follow UsdGeom.PointInstancer: a template point x (template local frame) of instance j
+lands at  positions[j] + rotate(orientations[j], scales[j] * MLS_j(x))  in the asset frame.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class PlantAsset:
+    """A LeafFit plant.
+
+    template_points : (V, 3) float32, template mesh vertices (both sides), template local frame
+    template_faces : (F, 3) int32
+    template_normals : (V, 3) float32
+    template_uvs : (V, 2) float32
+    template_side : (V,) uint8, 0 front / 1 back
+    template_controls : (K, 3) float32, MLS source control points p, template local frame
+    targets : (L, K, 3) float32, per-instance MLS targets q_j, instance local frame (pre-scale)
+    positions : (L, 3) float32, instance translations, asset frame
+    orientations : (L, 4) float32 unit quaternions (w, x, y, z)
+    scales : (L, 3) float32, instance scales
+    leaf_labels : (L,) int32, segmentation label of each instance
+    sigma, reg : MLS kernel width and regulariser (template local units)
+    stem_points : (P, 3) float32, asset frame;  stem_faces : (G, 3) int32
+    asset_to_input : (4, 4) float64, asset frame -> the input capture's frame
+    front_texture, back_texture : texture file paths as authored (relative to the stage)
+    metadata : parameters, input hash, tool version
+    """
+
+    template_points: np.ndarray
+    template_faces: np.ndarray
+    template_normals: np.ndarray
+    template_uvs: np.ndarray
+    template_side: np.ndarray
+    template_controls: np.ndarray
+    targets: np.ndarray
+    positions: np.ndarray
+    orientations: np.ndarray
+    scales: np.ndarray
+    leaf_labels: np.ndarray
+    sigma: float
+    reg: float
+    stem_points: np.ndarray
+    stem_faces: np.ndarray
+    asset_to_input: np.ndarray
+    front_texture: str = ""
+    back_texture: str = ""
+    metadata: dict = field(default_factory=dict)
+
+    @property
+    def n_leaves(self) -> int:
+        return int(len(self.targets))
