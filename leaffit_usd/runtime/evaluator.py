@@ -1,0 +1,228 @@
+"""CPU reference evaluator: a LeafFit plant (``PlantAsset``) -> the explicit mesh of every leaf.
+
+Every leaf is the template mesh deformed by its own affine MLS field and then placed by its
+PointInstancer transform (``usd.asset``):
+
+    x_asset = positions[j] + rotate(orientations[j], scales[j] * MLS_j(x)),   x a template vertex
+    MLS_j(x) = sum_k A[x, k] targets[j, k]                       (``fit.mls``, the ONE formulation)
+
+The MLS weights A (V, K) depend only on the template, so they are computed once per asset
+(:func:`leaffit_usd.fit.mls.mls_weights`); each leaf is then one (V, K) @ (K, 3) product,
+done for all leaves at once by :func:`leaffit_usd.fit.mls.deform`. The instance transforms
+(and, by default, ``asset_to_input``) follow as one per-leaf affine map. All arithmetic is
+float64; ``dtype`` only chooses the output precision.
+
+Use :class:`LeafEvaluator` when the same template is evaluated many times (animation: new
+targets per frame); :func:`evaluate` is the one-off wrapper.
+
+Conventions: quaternions are (w, x, y, z), real part first, and need not be normalised (USD
+normalises ``orientations`` too); ``frame="input"`` returns the input capture's frame via
+``asset.asset_to_input``, ``frame="asset"`` the stage's own frame.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from leaffit_usd.errors import ParameterError
+from leaffit_usd.fit.mls import deform, mls_weights
+
+FRAMES = ("input", "asset")
+
+
+@dataclass
+class BakedLeaves:
+    """The explicit leaves of one plant (the ``bake`` output; npz layout in DESIGN.md).
+
+    vertices : (L * V, 3) float, all leaves concatenated (leaf j owns rows j*V .. (j+1)*V - 1),
+        in ``frame``
+    faces : (L * F, 3) int32, triangles indexing ``vertices``; a leaf whose placement mirrors
+        (negative determinant) has its winding reversed so front faces keep facing front
+    leaf_vertex_ids : (L * V,) int32, instance index j (0 .. L-1) of each vertex
+        (``leaf_labels[leaf_vertex_ids]`` gives the segmentation label)
+    leaf_labels : (L,) int32, segmentation label of each instance
+    stem_vertices : (P, 3) float, stem mesh in ``frame`` (empty when the plant has no stem)
+    stem_faces : (G, 3) int32, indexing ``stem_vertices``
+    frame : "input" (the capture's frame) or "asset" (the USD stage's frame)
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    leaf_vertex_ids: np.ndarray
+    leaf_labels: np.ndarray
+    stem_vertices: np.ndarray
+    stem_faces: np.ndarray
+    frame: str = "input"
+    metadata: dict = field(default_factory=dict)
+
+    @property
+    def n_leaves(self) -> int:
+        return int(len(self.leaf_labels))
+
+    def leaf(self, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """Vertices (V, 3) and faces (F, 3) (indexing those vertices) of instance ``j``."""
+        v_per = len(self.vertices) // max(self.n_leaves, 1)
+        f_per = len(self.faces) // max(self.n_leaves, 1)
+        return (self.vertices[j * v_per:(j + 1) * v_per],
+                self.faces[j * f_per:(j + 1) * f_per] - j * v_per)
+
+
+def _require(name: str, a, shape: tuple, what: str) -> np.ndarray:
+    """Check ``a`` has ``shape`` (None = any size) and finite values; return it as an array."""
+    arr = np.asarray(a)
+    ok = arr.ndim == len(shape) and all(s is None or s == n for s, n in zip(shape, arr.shape))
+    if not ok:
+        raise ParameterError(name, what, f"array of shape {arr.shape}")
+    if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+        raise ParameterError(name, f"{what} with finite values", "NaN or inf entries")
+    return arr
+
+
+def instance_matrices(positions: np.ndarray, orientations: np.ndarray,
+                      scales: np.ndarray) -> np.ndarray:
+    """PointInstancer instance transforms (column-vector convention, x' = M @ [x, 1]).
+
+    positions : (L, 3), orientations : (L, 4) quaternions (w, x, y, z), scales : (L, 3).
+    Returns (L, 4, 4) float64 mapping the instance's local frame to the asset frame:
+    M = T(positions) R(orientations) S(scales), as ``UsdGeom.PointInstancer`` composes them.
+    Quaternions are normalised first (as USD does); a zero quaternion is an error.
+    """
+    pos = np.asarray(positions, np.float64)
+    q = np.asarray(orientations, np.float64)
+    s = np.asarray(scales, np.float64)
+    n = np.linalg.norm(q, axis=1, keepdims=True)
+    if (n <= 0).any():
+        raise ParameterError("orientations", "non-zero quaternions (w, x, y, z)",
+                             f"{int((n[:, 0] <= 0).sum())} zero quaternion(s)")
+    w, x, y, z = (q / n).T
+    R = np.empty((len(q), 3, 3))
+    R[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    R[:, 0, 1] = 2 * (x * y - w * z)
+    R[:, 0, 2] = 2 * (x * z + w * y)
+    R[:, 1, 0] = 2 * (x * y + w * z)
+    R[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    R[:, 1, 2] = 2 * (y * z - w * x)
+    R[:, 2, 0] = 2 * (x * z - w * y)
+    R[:, 2, 1] = 2 * (y * z + w * x)
+    R[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    M = np.zeros((len(q), 4, 4))
+    M[:, :3, :3] = R * s[:, None, :]
+    M[:, :3, 3] = pos
+    M[:, 3, 3] = 1.0
+    return M
+
+
+class LeafEvaluator:
+    """Deforms one template for any number of instances; the MLS weights are computed once.
+
+    template_points : (V, 3) template vertices, template local frame
+    template_controls : (K, 3) MLS source control points p, template local frame
+    sigma, reg : MLS kernel width and regulariser (``fit.mls``), template local units
+    """
+
+    def __init__(self, template_points: np.ndarray, template_controls: np.ndarray,
+                 sigma: float, reg: float):
+        pts = _require("template_points", template_points, (None, 3), "(V, 3) float")
+        ctl = _require("template_controls", template_controls, (None, 3), "(K, 3) float")
+        if len(ctl) < 4:
+            raise ParameterError("template_controls", "at least 4 control points", len(ctl))
+        if not (np.isfinite(sigma) and sigma > 0):
+            raise ParameterError("sigma", "a positive kernel width", sigma)
+        if not (np.isfinite(reg) and reg >= 0):
+            raise ParameterError("reg", "a non-negative regulariser", reg)
+        self.template_points = pts
+        self.template_controls = ctl
+        self.sigma, self.reg = float(sigma), float(reg)
+        #: (V, K) float64 affine-MLS weights of every template vertex
+        self.weights = mls_weights(ctl, pts, self.sigma, self.reg)
+
+    @property
+    def K(self) -> int:
+        return int(self.weights.shape[1])
+
+    @classmethod
+    def from_asset(cls, asset) -> "LeafEvaluator":
+        return cls(asset.template_points, asset.template_controls, asset.sigma, asset.reg)
+
+    def deform_local(self, targets: np.ndarray) -> np.ndarray:
+        """MLS only. targets : (L, K, 3) instance local frame -> (L, V, 3) float64, same frame."""
+        q = _require("targets", targets, (None, self.K, 3), f"(L, {self.K}, 3) float")
+        return deform(self.weights, q.astype(np.float64, copy=False))
+
+    def evaluate(self, targets: np.ndarray, matrices: np.ndarray, out_dtype=np.float64) -> np.ndarray:
+        """Deform and place every instance.
+
+        targets : (L, K, 3) instance local frame; matrices : (L, 4, 4) affine, instance local ->
+        output frame (e.g. ``instance_matrices(...)``, optionally premultiplied by a frame change).
+        Returns (L, V, 3) ``out_dtype``, output frame.
+        """
+        L = len(np.asarray(targets))
+        M = _require("matrices", matrices, (L, 4, 4), f"({L}, 4, 4) affine matrices")
+        local = self.deform_local(targets)                                   # (L, V, 3)
+        lin = np.ascontiguousarray(M[:, :3, :3], np.float64)
+        out = np.einsum("lvc,ldc->lvd", local, lin, optimize=True)           # R S x per leaf
+        out += M[:, None, :3, 3]
+        return out.astype(out_dtype, copy=False)
+
+
+def _asset_transforms(asset, frame: str) -> tuple[np.ndarray, np.ndarray]:
+    """(L, 4, 4) instance -> output frame, and the (4, 4) asset -> output frame matrix."""
+    if frame not in FRAMES:
+        raise ParameterError("frame", " or ".join(repr(f) for f in FRAMES), frame)
+    L = asset.n_leaves
+    _require("positions", asset.positions, (L, 3), f"({L}, 3) float (one per leaf)")
+    _require("orientations", asset.orientations, (L, 4), f"({L}, 4) quaternions (w, x, y, z)")
+    _require("scales", asset.scales, (L, 3), f"({L}, 3) float")
+    to_out = np.eye(4)
+    if frame == "input":
+        to_out = _require("asset_to_input", asset.asset_to_input, (4, 4), "(4, 4) affine matrix")
+        to_out = np.asarray(to_out, np.float64)
+    M = instance_matrices(asset.positions, asset.orientations, asset.scales)
+    return np.einsum("ij,ljk->lik", to_out, M), to_out
+
+
+def evaluate(asset, frame: str = "input", dtype=np.float64,
+             evaluator: LeafEvaluator | None = None) -> BakedLeaves:
+    """Explicit meshes of all leaves (and the stem) of ``asset``.
+
+    asset : PlantAsset (``leaffit_usd.usd.asset``), e.g. from ``usd.reader.read_stage``
+    frame : "input" (default; the capture's frame via ``asset.asset_to_input``) or "asset"
+    dtype : float dtype of the returned vertices (arithmetic is float64 either way)
+    evaluator : a :class:`LeafEvaluator` already built for this asset's template (reuse it to
+        skip the weights when only targets/transforms changed)
+    Returns :class:`BakedLeaves`.
+    """
+    ev = evaluator if evaluator is not None else LeafEvaluator.from_asset(asset)
+    L, V = asset.n_leaves, len(ev.template_points)
+    _require("targets", asset.targets, (None, ev.K, 3), f"(L, {ev.K}, 3) float")
+    faces = _require("template_faces", asset.template_faces, (None, 3), "(F, 3) int")
+    if len(faces) and (faces.min() < 0 or faces.max() >= V):
+        raise ParameterError("template_faces", f"indices in [0, {V})",
+                             f"range [{faces.min()}, {faces.max()}]")
+    labels = _require("leaf_labels", asset.leaf_labels, (L,), f"({L},) int (one per leaf)")
+    M, to_out = _asset_transforms(asset, frame)
+
+    verts = ev.evaluate(asset.targets, M, out_dtype=dtype).reshape(L * V, 3)
+
+    faces = faces.astype(np.int32)
+    mirrored = np.linalg.det(M[:, :3, :3]) < 0
+    per_leaf = np.where(mirrored[:, None, None], faces[None, :, ::-1], faces[None])
+    all_faces = (per_leaf + (np.arange(L, dtype=np.int32) * V)[:, None, None]).reshape(-1, 3)
+
+    stem_pts = np.asarray(asset.stem_points, np.float64).reshape(-1, 3)
+    stem_faces = np.asarray(asset.stem_faces, np.int32).reshape(-1, 3)
+    stem_out = stem_pts @ to_out[:3, :3].T + to_out[:3, 3]
+    if np.linalg.det(to_out[:3, :3]) < 0:
+        stem_faces = stem_faces[:, ::-1]
+    return BakedLeaves(
+        vertices=verts,
+        faces=np.ascontiguousarray(all_faces),
+        leaf_vertex_ids=np.repeat(np.arange(L, dtype=np.int32), V),
+        leaf_labels=labels.astype(np.int32),
+        stem_vertices=stem_out.astype(dtype),
+        stem_faces=np.ascontiguousarray(stem_faces),
+        frame=frame,
+        metadata={"K": ev.K, "sigma": ev.sigma, "reg": ev.reg,
+                  "template_vertex_count": V, "template_face_count": int(len(faces))},
+    )
