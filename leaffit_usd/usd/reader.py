@@ -1,0 +1,175 @@
+"""USD stage -> PlantAsset (the inverse of ``usd.writer``; layout in docs/usd_layout.md).
+
+Works without the schema plug-in too: every deformer value is read from authored attributes
+(by name), never from schema fallbacks. The baked-leaves payload is not loaded.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+import leaffit_usd  # noqa: F401  (registers the schema)
+from leaffit_usd.errors import InputFileError
+from leaffit_usd.usd import schema as S
+from leaffit_usd.usd.asset import PlantAsset
+
+
+def open_stage(path, load_payloads: bool = False):
+    """Open a stage read-only-ish (payloads unloaded by default). Raises InputFileError."""
+    from pxr import Tf, Usd
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileError(p, "no such file")
+    try:
+        stage = Usd.Stage.Open(str(p), Usd.Stage.LoadAll if load_payloads else Usd.Stage.LoadNone)
+    except Tf.ErrorException as e:
+        raise InputFileError(p, f"not a readable USD file ({str(e).strip().splitlines()[-1][:200]})") from None
+    if stage is None:
+        raise InputFileError(p, "not a readable USD file")
+    return stage
+
+
+def find_instancer(stage):
+    """The LeafFit PointInstancer prim: the one carrying the deformer's control points."""
+    from pxr import Usd, UsdGeom
+
+    root = stage.GetDefaultPrim()
+    candidates = []
+    for prim in Usd.PrimRange(root if root else stage.GetPseudoRoot()):
+        if prim.IsA(UsdGeom.PointInstancer) and prim.HasAttribute(S.ATTR_CONTROLS):
+            candidates.append(prim)
+    return candidates[0] if candidates else None
+
+
+def _np(value, dtype, shape_tail=()):
+    if value is None:
+        return np.zeros((0, *shape_tail), dtype)
+    a = np.asarray(value, dtype)
+    return a.reshape(-1, *shape_tail) if shape_tail else a.reshape(-1)
+
+
+def _get(prim, name, default=None):
+    a = prim.GetAttribute(name)
+    if not a or not a.HasAuthoredValue():
+        return default
+    return a.Get()
+
+
+def read_stage(path) -> PlantAsset:
+    """Read a LeafFit stage (.usda/.usdc/.usdz) into a PlantAsset (asset frame).
+
+    Raises InputFileError if the file is unreadable or not a LeafFit plant.
+    """
+    from pxr import UsdGeom, UsdShade
+
+    stage = open_stage(path)
+    inst_prim = find_instancer(stage)
+    if inst_prim is None:
+        raise InputFileError(path, "not a LeafFit plant (no PointInstancer with "
+                                   f"{S.ATTR_CONTROLS})")
+    inst = UsdGeom.PointInstancer(inst_prim)
+    rel = inst_prim.GetRelationship(S.ATTR_TEMPLATE_REL)
+    targets = rel.GetTargets() if rel else []
+    if not targets:
+        targets = inst.GetPrototypesRel().GetTargets()
+    if not targets:
+        raise InputFileError(path, f"{inst_prim.GetPath()}: no template mesh")
+    tmpl_prim = stage.GetPrimAtPath(targets[0])
+    mesh = UsdGeom.Mesh(tmpl_prim)
+    if not tmpl_prim or not tmpl_prim.IsA(UsdGeom.Mesh):
+        raise InputFileError(path, f"{targets[0]}: the template is not a Mesh")
+
+    points = _np(mesh.GetPointsAttr().Get(), np.float32, (3,))
+    counts = _np(mesh.GetFaceVertexCountsAttr().Get(), np.int32)
+    if counts.size and not np.all(counts == 3):
+        raise InputFileError(path, f"{tmpl_prim.GetPath()}: template faces must be triangles")
+    faces = _np(mesh.GetFaceVertexIndicesAttr().Get(), np.int32, (3,))
+    normals = _np(mesh.GetNormalsAttr().Get(), np.float32, (3,))
+    pv = UsdGeom.PrimvarsAPI(tmpl_prim)
+    st = pv.GetPrimvar("st")
+    uvs = _np(st.Get() if st else None, np.float32, (2,))
+    side_pv = pv.GetPrimvar("leaffit:side")
+    side = _np(side_pv.Get() if side_pv else None, np.int32).astype(np.uint8)
+    if len(side) != len(points):
+        side = np.zeros(len(points), np.uint8)
+
+    controls = _np(_get(inst_prim, S.ATTR_CONTROLS), np.float32, (3,))
+    K = int(_get(inst_prim, S.ATTR_K, len(controls)))
+    primvar_name = str(_get(inst_prim, S.ATTR_TARGETS_PRIMVAR, S.TARGETS_PRIMVAR))
+    tg = inst_prim.GetAttribute(primvar_name)
+    tq = _np(tg.Get() if tg else None, np.float32, (3,))
+    pos = _np(inst.GetPositionsAttr().Get(), np.float32, (3,))
+    L = len(pos)
+    if K <= 0 or len(controls) != K or len(tq) != L * K:
+        raise InputFileError(path, f"{inst_prim.GetPath()}: expected {L} x {K} target control "
+                                   f"points in {primvar_name}, found {len(tq)}")
+    qf = inst.GetOrientationsfAttr().Get() if inst.GetOrientationsfAttr().HasAuthoredValue() else None
+    q = qf if qf is not None and len(qf) == L else inst.GetOrientationsAttr().Get()
+    xyzw = _np(q, np.float32, (4,)) if q is not None and len(q) else np.tile([0, 0, 0, 1], (L, 1))
+    orient = np.ascontiguousarray(np.concatenate([xyzw[:, 3:], xyzw[:, :3]], 1), np.float32)
+    scales_v = inst.GetScalesAttr().Get()
+    scales = _np(scales_v, np.float32, (3,)) if scales_v is not None and len(scales_v) else np.ones((L, 3), np.float32)
+    lab_pv = UsdGeom.PrimvarsAPI(inst_prim).GetPrimvar("leaffit:leafLabel")
+    labels = _np(lab_pv.Get() if lab_pv else None, np.int32)
+    if len(labels) != L:
+        ids = inst.GetIdsAttr().Get()
+        labels = np.asarray(ids, np.int32) if ids is not None and len(ids) == L else np.arange(1, L + 1, dtype=np.int32)
+
+    root = stage.GetDefaultPrim() or inst_prim.GetParent()
+    stem_pts, stem_faces = np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)
+    for child in root.GetChildren():
+        if child.IsA(UsdGeom.Mesh) and (child.GetCustomDataByKey("leaffit:role") == "stem"
+                                        or child.GetName() == "Stem"):
+            sm = UsdGeom.Mesh(child)
+            stem_pts = _np(sm.GetPointsAttr().Get(), np.float32, (3,))
+            stem_faces = _np(sm.GetFaceVertexIndicesAttr().Get(), np.int32, (3,))
+            break
+
+    cd = root.GetCustomDataByKey("leaffit") or {}
+    metadata = {}
+    if "metadataJson" in cd:
+        try:
+            metadata = json.loads(cd["metadataJson"])
+        except ValueError:
+            metadata = {}
+    m = cd.get("assetToInput")
+    asset_to_input = np.asarray(m, np.float64).T.copy() if m is not None else np.eye(4)
+    if not metadata:
+        metadata = {"tool_version": cd.get("toolVersion", ""), "input_sha256": cd.get("inputSha256", "")}
+    metadata.setdefault("up_axis", str(UsdGeom.GetStageUpAxis(stage)))
+    metadata.setdefault("meters_per_unit", float(UsdGeom.GetStageMetersPerUnit(stage)))
+
+    front_tex = back_tex = ""
+    for subset in UsdGeom.Subset.GetGeomSubsets(mesh, UsdGeom.Tokens.face, "materialBind"):
+        mat, _ = UsdShade.MaterialBindingAPI(subset.GetPrim()).ComputeBoundMaterial()
+        tex = _material_texture(mat) if mat else ""
+        if subset.GetPrim().GetName() == "front":
+            front_tex = tex
+        elif subset.GetPrim().GetName() == "back":
+            back_tex = tex
+
+    return PlantAsset(
+        template_points=points, template_faces=faces, template_normals=normals,
+        template_uvs=uvs, template_side=side, template_controls=controls,
+        targets=tq.reshape(L, K, 3), positions=pos, orientations=orient, scales=scales,
+        leaf_labels=labels,
+        sigma=float(_get(inst_prim, S.ATTR_SIGMA, 0.1)), reg=float(_get(inst_prim, S.ATTR_REG, 0.01)),
+        stem_points=stem_pts, stem_faces=stem_faces, asset_to_input=asset_to_input,
+        front_texture=front_tex, back_texture=back_tex, metadata=metadata,
+    )
+
+
+def _material_texture(material) -> str:
+    """The authored file path of the UsdUVTexture feeding the material's diffuseColor ('' if none)."""
+    from pxr import Usd, UsdShade
+
+    for prim in Usd.PrimRange(material.GetPrim()):
+        shader = UsdShade.Shader(prim)
+        if shader and shader.GetIdAttr().Get() == "UsdUVTexture":
+            f = shader.GetInput("file")
+            v = f.Get() if f else None
+            return v.path if v is not None else ""
+    return ""

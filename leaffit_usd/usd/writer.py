@@ -1,0 +1,526 @@
+"""PlantAsset -> USD stage (.usda, .usdc, .usdz). The layout is documented in docs/usd_layout.md.
+
+::
+
+    /<Plant>                      Xform, defaultPrim, kind = component, customData["leaffit"]
+        Looks/                    Scope
+            LeafFront, LeafBack   Material: UsdPreviewSurface <- UsdUVTexture(file) <- primvars:st
+            Stem                  Material: UsdPreviewSurface, constant colour
+        Leaves                    PointInstancer, apiSchemas = [LeafFitMLSDeformerAPI]
+            Prototypes/TemplateLeaf   Mesh (the ONE template), GeomSubsets front/back -> materials
+        Stem                      Mesh (cylinders)
+        BakedLeaves               only in variant leafRepresentation = baked: payload
+                                  @./<name>.baked.usdc@ with one Mesh per leaf
+
+Conventions (the only place they are converted): PlantAsset quaternions are (w, x, y, z); Gf
+quaternions store (x, y, z, w) in memory. Matrices in customData are Gf.Matrix4d, USD's
+row-vector convention (``x' = x * M``), i.e. the transpose of our column-vector numpy 4x4s.
+
+Outputs are atomic: every file is built in a temporary directory beside the target and moved
+into place only when all of them were written; the stage file itself is moved last.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+import leaffit_usd  # noqa: F401  (registers the schema before the registry is used)
+from leaffit_usd.errors import ParameterError
+from leaffit_usd.fit.mls import deform, mls_weights
+from leaffit_usd.usd import schema as S
+from leaffit_usd.usd.asset import PlantAsset
+
+log = logging.getLogger("leaffit_usd")
+
+FORMATS = (".usda", ".usdc", ".usd", ".usdz")
+TEXTURE_FORMATS = ("jpg", "png")
+STEM_COLOR = (0.23, 0.30, 0.12)   # linear RGB of the stem material
+LEAF_ROUGHNESS = 0.6
+
+
+@dataclass
+class LeafTextures:
+    """The two leaf textures. front, back : (H, W, 3|4) uint8 (straight alpha), row 0 = top (v = 1)."""
+
+    front: np.ndarray
+    back: np.ndarray
+
+
+@dataclass
+class WriteOptions:
+    """How the stage is written.
+
+    texture_format : "jpg" (default, compact; alpha dropped: the mesh outline is the leaf's
+        outline) or "png" (keeps alpha, wired to opacity with a 0.5 cut-out threshold)
+    texture_max_size : textures larger than this (pixels, longest side) are downsampled
+    jpeg_quality : 1..100
+    baked : also write the baked-leaves payload (variant leafRepresentation = baked)
+    prim_name : name of the plant prim (default: the output file's stem, made a valid identifier)
+    """
+
+    texture_format: str = "jpg"
+    texture_max_size: int = 1024
+    jpeg_quality: int = 90
+    baked: bool = True
+    prim_name: str | None = None
+
+
+@dataclass
+class WriteResult:
+    """What was written. files : {role: path}; sizes : {role: bytes}; total_bytes : int."""
+
+    path: Path
+    files: dict = field(default_factory=dict)
+    sizes: dict = field(default_factory=dict)
+
+    @property
+    def total_bytes(self) -> int:
+        return int(sum(self.sizes.values()))
+
+
+# ----------------------------------------------------------------------------------------------
+# public entry point
+
+
+def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
+                options: WriteOptions | None = None) -> WriteResult:
+    """Write ``asset`` as a USD stage at ``path`` (.usda/.usdc/.usd/.usdz), atomically.
+
+    textures : the front/back leaf images, or None (materials then use a constant green and no
+        texture files are written; the asset's own texture paths are kept if set).
+    For .usda/.usdc the textures go to ``textures/<name>.front.<ext>`` and the baked payload to
+    ``<name>.baked.usdc`` beside the stage (relative paths); for .usdz all of them are packed.
+    Returns a :class:`WriteResult`. Raises ParameterError for an unknown extension or option.
+    """
+    options = options or WriteOptions()
+    path = Path(path)
+    ext = path.suffix.lower()
+    if ext not in FORMATS:
+        raise ParameterError("output", f"a file ending in {', '.join(FORMATS)}", str(path))
+    if options.texture_format not in TEXTURE_FORMATS:
+        raise ParameterError("--texture-format", " or ".join(TEXTURE_FORMATS), options.texture_format)
+    if not (16 <= int(options.texture_max_size) <= 16384):
+        raise ParameterError("--texture-size", "an integer in 16..16384", options.texture_max_size)
+    _check_asset(asset)
+
+    from pxr import Tf
+
+    name = options.prim_name or Tf.MakeValidIdentifier(path.stem) or "Plant"
+    stem = path.stem
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{stem}.", dir=path.parent))
+    try:
+        rel = {}  # role -> relative path inside tmp (and beside / inside the output)
+        if textures is not None:
+            for role, img in (("front", textures.front), ("back", textures.back)):
+                r = f"textures/{stem}.{role}.{options.texture_format}"
+                _write_texture(tmp / r, img, options)
+                rel[f"texture_{role}"] = r
+            front_tex, back_tex = "./" + rel["texture_front"], "./" + rel["texture_back"]
+        else:
+            front_tex, back_tex = asset.front_texture, asset.back_texture
+        baked_rel = f"{stem}.baked.usdc" if options.baked and asset.n_leaves else None
+        if baked_rel:
+            _write_baked_layer(tmp / baked_rel, asset)
+            rel["baked"] = baked_rel
+        main_rel = f"{stem}.usdc" if ext == ".usdz" else path.name
+        has_alpha = textures is not None and options.texture_format == "png"
+        _write_main_layer(tmp / main_rel, asset, name, front_tex, back_tex, has_alpha,
+                          "./" + baked_rel if baked_rel else None)
+        result = WriteResult(path=path)
+        if ext == ".usdz":
+            pkg = tmp / path.name
+            _package_usdz(pkg, tmp, [main_rel] + [v for k, v in sorted(rel.items())])
+            for k, v in [("stage", main_rel)] + sorted(rel.items()):
+                result.sizes[k] = (tmp / v).stat().st_size
+            os.replace(pkg, path)
+            result.files = {"stage": path}
+            result.sizes = {"usdz": path.stat().st_size, **{f"packed_{k}": v for k, v in result.sizes.items()}}
+        else:
+            for k, v in sorted(rel.items()):  # sidecars first, the stage last
+                dst = path.parent / v
+                dst.parent.mkdir(parents=True, exist_ok=True)
+                os.replace(tmp / v, dst)
+                result.files[k] = dst
+                result.sizes[k] = dst.stat().st_size
+            os.replace(tmp / main_rel, path)
+            result.files["stage"] = path
+            result.sizes["stage"] = path.stat().st_size
+        return result
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+# ----------------------------------------------------------------------------------------------
+# checks
+
+
+def _check_asset(a: PlantAsset) -> None:
+    V, L, K = len(a.template_points), a.n_leaves, len(a.template_controls)
+    checks = [
+        ("template_points", a.template_points.shape == (V, 3) and V > 0, "(V, 3), V > 0", a.template_points.shape),
+        ("template_faces", a.template_faces.ndim == 2 and a.template_faces.shape[1] == 3 and len(a.template_faces) > 0,
+         "(F, 3), F > 0", a.template_faces.shape),
+        ("template_normals", a.template_normals.shape == (V, 3), f"({V}, 3)", a.template_normals.shape),
+        ("template_uvs", a.template_uvs.shape == (V, 2), f"({V}, 2)", a.template_uvs.shape),
+        ("template_side", a.template_side.shape == (V,), f"({V},)", a.template_side.shape),
+        ("template_controls", a.template_controls.shape == (K, 3) and K > 0, "(K, 3), K > 0", a.template_controls.shape),
+        ("targets", a.targets.shape == (L, K, 3), f"({L}, {K}, 3)", a.targets.shape),
+        ("positions", a.positions.shape == (L, 3), f"({L}, 3)", a.positions.shape),
+        ("orientations", a.orientations.shape == (L, 4), f"({L}, 4)", a.orientations.shape),
+        ("scales", a.scales.shape == (L, 3), f"({L}, 3)", a.scales.shape),
+        ("leaf_labels", a.leaf_labels.shape == (L,), f"({L},)", a.leaf_labels.shape),
+        ("asset_to_input", np.shape(a.asset_to_input) == (4, 4), "(4, 4)", np.shape(a.asset_to_input)),
+    ]
+    for name, ok, expected, got in checks:
+        if not ok:
+            raise ParameterError(f"asset.{name}", expected, got)
+    if a.template_faces.size and (a.template_faces.min() < 0 or a.template_faces.max() >= V):
+        raise ParameterError("asset.template_faces", f"indices in 0..{V - 1}",
+                             f"range {a.template_faces.min()}..{a.template_faces.max()}")
+    if a.stem_faces.size and (a.stem_faces.min() < 0 or a.stem_faces.max() >= len(a.stem_points)):
+        raise ParameterError("asset.stem_faces", f"indices in 0..{len(a.stem_points) - 1}",
+                             f"range {a.stem_faces.min()}..{a.stem_faces.max()}")
+    for name in ("template_points", "targets", "positions", "orientations", "scales", "stem_points"):
+        if not np.isfinite(getattr(a, name)).all():
+            raise ParameterError(f"asset.{name}", "finite values", "NaN or inf entries")
+
+
+# ----------------------------------------------------------------------------------------------
+# textures
+
+
+def _write_texture(path: Path, img: np.ndarray, options: WriteOptions) -> None:
+    """Write an (H, W, 3|4) uint8 image with OpenImageIO, downsampled to texture_max_size."""
+    import OpenImageIO as oiio
+
+    img = np.ascontiguousarray(img)
+    if img.ndim != 3 or img.shape[2] not in (3, 4) or img.dtype != np.uint8:
+        raise ParameterError("texture", "an (H, W, 3|4) uint8 image", f"{img.dtype} {img.shape}")
+    if options.texture_format == "jpg":
+        img = np.ascontiguousarray(img[:, :, :3])
+    buf = oiio.ImageBuf(img)
+    h, w = img.shape[:2]
+    m = int(options.texture_max_size)
+    if max(h, w) > m:
+        f = m / max(h, w)
+        roi = oiio.ROI(0, max(1, round(w * f)), 0, max(1, round(h * f)), 0, 1, 0, img.shape[2])
+        buf = oiio.ImageBufAlgo.resize(buf, roi=roi)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if options.texture_format == "jpg":
+        buf.specmod().attribute("Compression", f"jpeg:{int(options.jpeg_quality)}")
+    else:
+        buf.specmod().attribute("png:compressionLevel", 9)
+    buf.set_write_format(oiio.UINT8)
+    if not buf.write(str(path)):
+        raise OSError(f"cannot write texture {path}: {buf.geterror()}")
+
+
+# ----------------------------------------------------------------------------------------------
+# main layer
+
+
+def _vec3f(a):
+    from pxr import Vt
+    return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(a, np.float32).reshape(-1, 3))
+
+
+def _matrix(m: np.ndarray):
+    from pxr import Gf
+    return Gf.Matrix4d(np.asarray(m, np.float64).T.tolist())
+
+
+def _extent(points: np.ndarray):
+    from pxr import Vt
+    p = np.asarray(points, np.float32).reshape(-1, 3)
+    if not len(p):
+        p = np.zeros((1, 3), np.float32)
+    return Vt.Vec3fArray.FromNumpy(np.stack([p.min(0), p.max(0)]))
+
+
+def _make_material(stage, path: str, texture: str | None, color, has_alpha: bool):
+    """UsdPreviewSurface material; with a texture, diffuseColor (and opacity) read it via primvars:st."""
+    from pxr import Gf, Sdf, UsdShade
+
+    mat = UsdShade.Material.Define(stage, path)
+    surf = UsdShade.Shader.Define(stage, f"{path}/PreviewSurface")
+    surf.CreateIdAttr("UsdPreviewSurface")
+    surf.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(LEAF_ROUGHNESS)
+    surf.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(0.0)
+    mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
+    if not texture:
+        surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*color))
+        return mat
+    reader = UsdShade.Shader.Define(stage, f"{path}/StReader")
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+    reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
+    tex = UsdShade.Shader.Define(stage, f"{path}/Texture")
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(texture))
+    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
+    tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
+    tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
+    tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+    surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
+    if has_alpha:
+        tex.CreateOutput("a", Sdf.ValueTypeNames.Float)
+        surf.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(tex.ConnectableAPI(), "a")
+        surf.CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(0.5)
+    return mat
+
+
+def _face_sides(a: PlantAsset) -> np.ndarray:
+    """(F,) uint8 side of every template face (majority of its vertices)."""
+    return (a.template_side[a.template_faces].astype(np.int32).sum(1) >= 2).astype(np.uint8)
+
+
+def _author_template_mesh(stage, path: str, a: PlantAsset, looks: str):
+    from pxr import Sdf, UsdGeom, UsdShade, Vt
+
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
+    mesh.CreateDoubleSidedAttr(False)
+    mesh.CreatePointsAttr(_vec3f(a.template_points))
+    mesh.CreateExtentAttr(_extent(a.template_points))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(a.template_faces), 3, np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(a.template_faces, np.int32).ravel()))
+    mesh.CreateNormalsAttr(_vec3f(a.template_normals))
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    pv = UsdGeom.PrimvarsAPI(mesh)
+    st = pv.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+    st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(a.template_uvs, np.float32)))
+    side = pv.CreatePrimvar("leaffit:side", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex)
+    side.Set(Vt.IntArray.FromNumpy(a.template_side.astype(np.int32)))
+    _bind_sides(stage, mesh, _face_sides(a), looks)
+    mesh.GetPrim().SetCustomDataByKey("leaffit:role", "template")
+    return mesh
+
+
+def _bind_sides(stage, mesh, face_side: np.ndarray, looks: str | None):
+    """GeomSubsets 'front'/'back' (family materialBind) and, if looks is given, their bindings."""
+    from pxr import UsdGeom, UsdShade, Vt
+
+    for side, name, mat in ((0, "front", "LeafFront"), (1, "back", "LeafBack")):
+        idx = np.flatnonzero(face_side == side).astype(np.int32)
+        sub = UsdGeom.Subset.CreateGeomSubset(mesh, name, UsdGeom.Tokens.face,
+                                              Vt.IntArray.FromNumpy(idx), "materialBind",
+                                              UsdGeom.Tokens.nonOverlapping)
+        if looks:
+            api = UsdShade.MaterialBindingAPI.Apply(sub.GetPrim())
+            api.Bind(UsdShade.Material(stage.GetPrimAtPath(f"{looks}/{mat}")))
+    UsdGeom.Subset.SetFamilyType(mesh, "materialBind", UsdGeom.Tokens.partition)
+
+
+def _quat_arrays(q_wxyz: np.ndarray):
+    from pxr import Vt
+    q = np.asarray(q_wxyz, np.float64)
+    q = q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-30)
+    xyzw = np.ascontiguousarray(np.concatenate([q[:, 1:], q[:, :1]], 1))
+    return (Vt.QuathArray.FromNumpy(xyzw.astype(np.float16)),
+            Vt.QuatfArray.FromNumpy(xyzw.astype(np.float32)))
+
+
+def _deformed_leaves(a: PlantAsset) -> np.ndarray:
+    """(L, V, 3) float64 explicit leaves, asset frame: positions + R (s * MLS(x))."""
+    from leaffit_usd.splats.cloud import quat_to_matrix
+
+    A = mls_weights(a.template_controls, a.template_points, a.sigma, a.reg)
+    local = deform(A, np.asarray(a.targets, np.float64)) * np.asarray(a.scales, np.float64)[:, None, :]
+    q = np.asarray(a.orientations, np.float64)
+    R = quat_to_matrix(q / np.linalg.norm(q, axis=1, keepdims=True))
+    return np.einsum("lij,lvj->lvi", R, local) + np.asarray(a.positions, np.float64)[:, None, :]
+
+
+def _write_main_layer(out: Path, a: PlantAsset, name: str, front_tex: str, back_tex: str,
+                      has_alpha: bool, baked_rel: str | None) -> None:
+    from pxr import Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
+
+    stage = Usd.Stage.CreateNew(str(out))
+    up = str(a.metadata.get("up_axis", "Y")).upper()
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, float(a.metadata.get("meters_per_unit", 1.0)))
+    root = f"/{name}"
+    plant = UsdGeom.Xform.Define(stage, root).GetPrim()
+    stage.SetDefaultPrim(plant)
+    Usd.ModelAPI(plant).SetKind(Kind.Tokens.component)
+    Usd.ModelAPI(plant).SetAssetName(name)
+    Usd.ModelAPI(plant).SetAssetVersion(str(a.metadata.get("tool_version", leaffit_usd.__version__)))
+    plant.SetCustomDataByKey("leaffit", _custom_data(a))
+
+    looks = f"{root}/Looks"
+    UsdGeom.Scope.Define(stage, looks)
+    green = (0.1, 0.35, 0.08)
+    _make_material(stage, f"{looks}/LeafFront", front_tex or None, green, has_alpha)
+    _make_material(stage, f"{looks}/LeafBack", back_tex or None, green, has_alpha)
+    stem_mat = _make_material(stage, f"{looks}/Stem", None, STEM_COLOR, False)
+
+    # the leaves: one template Mesh prototype + a PointInstancer with the MLS deformer
+    inst_path = f"{root}/Leaves"
+    inst = UsdGeom.PointInstancer.Define(stage, inst_path)
+    UsdGeom.Scope.Define(stage, f"{inst_path}/Prototypes")
+    tmpl = _author_template_mesh(stage, f"{inst_path}/Prototypes/TemplateLeaf", a, looks)
+    inst.CreatePrototypesRel().SetTargets([tmpl.GetPath()])
+    L, K = a.n_leaves, len(a.template_controls)
+    inst.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.zeros(L, np.int32)))
+    inst.CreatePositionsAttr(_vec3f(a.positions))
+    qh, qf = _quat_arrays(a.orientations) if L else (Vt.QuathArray(), Vt.QuatfArray())
+    inst.CreateOrientationsAttr(qh)     # quath: what Blender reads
+    inst.CreateOrientationsfAttr(qf)    # float precision: preferred by USD when authored
+    inst.CreateScalesAttr(_vec3f(a.scales))
+    inst.CreateIdsAttr(Vt.Int64Array.FromNumpy(np.asarray(a.leaf_labels, np.int64)))
+    pv = UsdGeom.PrimvarsAPI(inst)
+    tg = pv.CreatePrimvar("leaffit:targets", Sdf.ValueTypeNames.Float3Array, UsdGeom.Tokens.vertex, K)
+    tg.Set(_vec3f(a.targets))
+    lab = pv.CreatePrimvar("leaffit:leafLabel", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex)
+    lab.Set(Vt.IntArray.FromNumpy(np.asarray(a.leaf_labels, np.int32)))
+    leaves = _deformed_leaves(a) if L else np.zeros((0, 3))
+    inst.CreateExtentAttr(_extent(leaves))
+    ip = inst.GetPrim()
+    ip.SetCustomDataByKey("leaffit:role", "leaves")
+    ip.ApplyAPI(S.API_NAME)
+    ip.CreateRelationship(S.ATTR_TEMPLATE_REL, custom=False).SetTargets([tmpl.GetPath()])
+    _attr(ip, S.ATTR_CONTROLS, Sdf.ValueTypeNames.Point3fArray, _vec3f(a.template_controls))
+    _attr(ip, S.ATTR_K, Sdf.ValueTypeNames.Int, int(K))
+    _attr(ip, S.ATTR_TARGETS_PRIMVAR, Sdf.ValueTypeNames.Token, S.TARGETS_PRIMVAR)
+    _attr(ip, S.ATTR_VARIANT, Sdf.ValueTypeNames.Token, "affine", uniform=True)
+    _attr(ip, S.ATTR_KERNEL, Sdf.ValueTypeNames.Token, "gaussian", uniform=True)
+    _attr(ip, S.ATTR_SIGMA, Sdf.ValueTypeNames.Float, float(a.sigma))
+    _attr(ip, S.ATTR_REG, Sdf.ValueTypeNames.Float, float(a.reg))
+    _attr(ip, S.ATTR_SHEET_OFFSET, Sdf.ValueTypeNames.Float, float(a.metadata.get("sheet_offset", 0.0)))
+    _attr(ip, S.ATTR_VERSION, Sdf.ValueTypeNames.Int, S.DEFORMER_VERSION, uniform=True)
+
+    if len(a.stem_points) and len(a.stem_faces):
+        stem = UsdGeom.Mesh.Define(stage, f"{root}/Stem")
+        stem.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        stem.CreatePointsAttr(_vec3f(a.stem_points))
+        stem.CreateExtentAttr(_extent(a.stem_points))
+        stem.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(a.stem_faces), 3, np.int32)))
+        stem.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(a.stem_faces, np.int32).ravel()))
+        UsdShade.MaterialBindingAPI.Apply(stem.GetPrim()).Bind(stem_mat)
+        stem.GetPrim().SetCustomDataByKey("leaffit:role", "stem")
+
+    # explicit leaves for tools without the deformer: a variant whose geometry is a payload file
+    if baked_rel:
+        vset = plant.GetVariantSets().AddVariantSet("leafRepresentation")
+        vset.AddVariant("deformer")
+        vset.AddVariant("baked")
+        vset.SetVariantSelection("baked")
+        with vset.GetVariantEditContext():
+            baked = UsdGeom.Xform.Define(stage, f"{root}/BakedLeaves")
+            baked.GetPrim().GetPayloads().AddPayload(baked_rel)
+            baked.GetPrim().SetCustomDataByKey("leaffit:role", "baked")
+            UsdGeom.Imageable(inst).CreateVisibilityAttr(UsdGeom.Tokens.invisible)
+            topo = stage.OverridePrim(f"{root}/BakedLeaves/LeafTopology")
+            for side, mat in (("front", "LeafFront"), ("back", "LeafBack")):
+                sub = stage.OverridePrim(f"{topo.GetPath()}/{side}")
+                UsdShade.MaterialBindingAPI.Apply(sub).Bind(
+                    UsdShade.Material(stage.GetPrimAtPath(f"{looks}/{mat}")))
+        vset.SetVariantSelection("deformer")
+    stage.GetRootLayer().documentation = (
+        "LeafFit plant: one template leaf Mesh deformed per instance by affine MLS "
+        "(LeafFitMLSDeformerAPI); written by leaffit-usd")
+    stage.GetRootLayer().Save()
+
+
+def _attr(prim, name, type_name, value, uniform=False):
+    from pxr import Sdf
+    a = prim.CreateAttribute(name, type_name, custom=False,
+                             variability=Sdf.VariabilityUniform if uniform else Sdf.VariabilityVarying)
+    a.Set(value)
+    return a
+
+
+def _custom_data(a: PlantAsset) -> dict:
+    md = a.metadata or {}
+    params = md.get("params", {})
+    return {
+        "toolVersion": str(md.get("tool_version", leaffit_usd.__version__)),
+        "inputSha256": str(md.get("input_sha256", "")),
+        "assetToInput": _matrix(a.asset_to_input),
+        "params": _flat_params(params),
+        "metadataJson": json.dumps(md, sort_keys=True, allow_nan=True),
+    }
+
+
+def _flat_params(params, prefix="") -> dict:
+    """Nested parameter dicts -> a USD dictionary of scalars (lists become JSON strings)."""
+    out = {}
+    for k, v in (params or {}).items():
+        if isinstance(v, dict):
+            out[str(k)] = _flat_params(v)
+        elif isinstance(v, bool):
+            out[str(k)] = bool(v)
+        elif isinstance(v, int):
+            out[str(k)] = int(v)
+        elif isinstance(v, float):
+            out[str(k)] = float(v)
+        elif v is None:
+            out[str(k)] = "None"
+        elif isinstance(v, str):
+            out[str(k)] = v
+        else:
+            out[str(k)] = json.dumps(v)
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# baked payload layer
+
+
+def _write_baked_layer(out: Path, a: PlantAsset) -> None:
+    """One Mesh per leaf (asset frame), sharing topology/UVs/subsets through an inherited class.
+
+    The class prim sits under the payload's root prim so the inherit arc is remapped when the
+    payload is loaded; material bindings are authored by the main layer's 'baked' variant.
+    """
+    from pxr import Sdf, Usd, UsdGeom, Vt
+
+    leaves = _deformed_leaves(a).astype(np.float32)
+    stage = Usd.Stage.CreateNew(str(out))
+    up = str(a.metadata.get("up_axis", "Y")).upper()
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, float(a.metadata.get("meters_per_unit", 1.0)))
+    root = UsdGeom.Xform.Define(stage, "/BakedLeaves")
+    stage.SetDefaultPrim(root.GetPrim())
+    topo_path = "/BakedLeaves/LeafTopology"
+    topo = stage.CreateClassPrim(topo_path)
+    topo.SetTypeName("Mesh")
+    mesh = UsdGeom.Mesh(topo)
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateDoubleSidedAttr(False)
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(a.template_faces), 3, np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(a.template_faces, np.int32).ravel()))
+    st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+    st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(a.template_uvs, np.float32)))
+    _bind_sides(stage, mesh, _face_sides(a), None)
+    for j in range(a.n_leaves):
+        leaf = UsdGeom.Mesh.Define(stage, f"/BakedLeaves/leaf_{j:04d}")
+        leaf.GetPrim().GetInherits().AddInherit(topo_path)
+        leaf.CreatePointsAttr(_vec3f(leaves[j]))
+        leaf.CreateExtentAttr(_extent(leaves[j]))
+        leaf.GetPrim().SetCustomDataByKey("leaffit:leafLabel", int(a.leaf_labels[j]))
+    stage.GetRootLayer().Save()
+
+
+# ----------------------------------------------------------------------------------------------
+# usdz
+
+
+def _package_usdz(pkg: Path, base: Path, files: list[str]) -> None:
+    """Pack ``files`` (relative to base, the root layer first) into an uncompressed, aligned usdz."""
+    from pxr import Sdf
+
+    writer = Sdf.ZipFileWriter.CreateNew(str(pkg))
+    for rel in files:
+        writer.AddFile(str(base / rel), rel)
+    writer.Save()
