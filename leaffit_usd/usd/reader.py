@@ -6,6 +6,7 @@ Works without the schema plug-in too: every deformer value is read from authored
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +27,8 @@ def open_stage(path, load_payloads: bool = False):
     try:
         stage = Usd.Stage.Open(str(p), Usd.Stage.LoadAll if load_payloads else Usd.Stage.LoadNone)
     except Tf.ErrorException as e:
-        raise InputFileError(p, f"not a readable USD file ({str(e).strip().splitlines()[-1][:200]})") from None
+        reason = re.findall(r"'([^']*)'\s*$", str(e).strip())
+        raise InputFileError(p, "not a readable USD file" + (f" ({reason[-1]})" if reason else "")) from None
     if stage is None:
         raise InputFileError(p, "not a readable USD file")
     return stage

@@ -1,0 +1,319 @@
+"""Validate a LeafFit stage: USD's own validators (pxr.UsdValidation, every registered one) plus
+our checks of the layout (docs/usd_layout.md), in the manner of usdchecker.
+
+Every finding carries a severity (``error`` > ``warning`` > ``info``), a rule name (``usd:<USD
+validator name>`` or ``leaffit:<rule>``), the prim/property path (or layer) it is about, and a
+message. A file *fails* when it has at least one error (``strict``: or a warning).
+
+USD's validators run once per variant of ``leafRepresentation`` (deformer, baked), with payloads
+loaded, so the baked geometry is checked too.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+import leaffit_usd  # noqa: F401  (registers the schema)
+from leaffit_usd.usd import schema as S
+
+SEVERITIES = ("error", "warning", "info")
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One problem. severity : error | warning | info; rule : 'usd:...' or 'leaffit:...'."""
+
+    severity: str
+    rule: str
+    path: str
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.severity.upper():7s} {self.rule}  {self.path or '-'}: {self.message}"
+
+
+@dataclass
+class ValidationReport:
+    """All findings for one file."""
+
+    file: str
+    findings: list = field(default_factory=list)
+
+    def count(self, severity: str) -> int:
+        return sum(f.severity == severity for f in self.findings)
+
+    def failed(self, strict: bool = False) -> bool:
+        return self.count("error") > 0 or (strict and self.count("warning") > 0)
+
+    def to_dict(self) -> dict:
+        return {"file": self.file, "errors": self.count("error"), "warnings": self.count("warning"),
+                "findings": [asdict(f) for f in self.findings]}
+
+
+def validate_file(path, run_usd: bool = True, run_layout: bool = True) -> ValidationReport:
+    """Validate the stage at ``path``. Raises InputFileError if it cannot be opened at all."""
+    from leaffit_usd.usd.reader import open_stage
+
+    report = ValidationReport(file=str(path))
+    stage = open_stage(path, load_payloads=True)
+    if run_usd:
+        report.findings += usd_validation(stage)
+    if run_layout:
+        report.findings += layout_findings(stage)
+    # de-duplicate (the same USD finding can come from both variants), keep order
+    seen, unique = set(), []
+    for f in report.findings:
+        if f not in seen:
+            seen.add(f)
+            unique.append(f)
+    report.findings = unique
+    return report
+
+
+# ----------------------------------------------------------------------------------------------
+# USD's validation framework
+
+
+def usd_validation(stage) -> list[Finding]:
+    """Run every registered pxr.UsdValidation validator, once per leafRepresentation variant."""
+    from pxr import UsdValidation
+
+    reg = UsdValidation.ValidationRegistry()
+    ctx = UsdValidation.ValidationContext(reg.GetOrLoadAllValidators())
+    out = _usd_errors(ctx.Validate(stage))
+    root = stage.GetDefaultPrim()
+    vset = root.GetVariantSets().GetVariantSet("leafRepresentation") if root else None
+    if vset and vset.IsValid():
+        original = vset.GetVariantSelection()
+        try:
+            for name in vset.GetVariantNames():
+                if name != original:
+                    vset.SetVariantSelection(name)  # session-less edit of the opened (unsaved) stage
+                    out += [Finding(f.severity, f.rule, f.path, f"{f.message} [variant {name}]")
+                            for f in _usd_errors(ctx.Validate(stage))]
+        finally:
+            vset.SetVariantSelection(original)
+    return out
+
+
+def _usd_errors(errors) -> list[Finding]:
+    from pxr import UsdValidation
+
+    sev = {UsdValidation.ValidationErrorType.Error: "error",
+           UsdValidation.ValidationErrorType.Warn: "warning",
+           UsdValidation.ValidationErrorType.Info: "info"}
+    out = []
+    for e in errors:
+        if e.HasNoError():
+            continue
+        v = e.GetValidator()
+        name = v.GetMetadata().name if v else e.GetName()
+        sites = []
+        for s in e.GetSites():
+            if s.IsPrim():
+                sites.append(str(s.GetPrim().GetPath()))
+            elif s.IsProperty():
+                sites.append(str(s.GetProperty().GetPath()))
+            elif s.GetLayer():
+                sites.append(s.GetLayer().identifier)
+        out.append(Finding(sev.get(e.GetType(), "info"), f"usd:{name}", ", ".join(sites),
+                           " ".join(e.GetMessage().split())))
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# our layout rules
+
+
+def layout_findings(stage) -> list[Finding]:
+    """Check the LeafFit layout (see docs/usd_layout.md). Each rule is named ``leaffit:<rule>``."""
+    from pxr import Kind, Usd, UsdGeom, UsdShade
+
+    from leaffit_usd.usd.reader import find_instancer
+
+    out: list[Finding] = []
+
+    def add(sev, rule, path, msg):
+        out.append(Finding(sev, f"leaffit:{rule}", str(path), msg))
+
+    root = stage.GetDefaultPrim()
+    if not root:
+        add("error", "DefaultPrim", "/", "the stage has no defaultPrim (the plant)")
+        return out
+    if Usd.ModelAPI(root).GetKind() != Kind.Tokens.component:
+        add("error", "PlantKind", root.GetPath(), f"the plant prim's kind is "
+            f"'{Usd.ModelAPI(root).GetKind()}', expected 'component'")
+    layer = stage.GetRootLayer()
+    if not layer.pseudoRoot.HasInfo("upAxis") or not layer.pseudoRoot.HasInfo("metersPerUnit"):
+        add("error", "StageUnits", layer.identifier, "upAxis and metersPerUnit must both be authored")
+    cd = root.GetCustomDataByKey("leaffit")
+    if not cd:
+        add("warning", "Provenance", root.GetPath(), "no customData['leaffit'] (parameters, input "
+            "hash, transform back to the input frame, tool version)")
+    else:
+        for key in ("toolVersion", "inputSha256", "assetToInput", "params"):
+            if key not in cd:
+                add("warning", "Provenance", root.GetPath(), f"customData['leaffit'] lacks '{key}'")
+
+    inst_prim = find_instancer(stage)
+    if inst_prim is None:
+        add("error", "Instancer", root.GetPath(), "no PointInstancer with authored "
+            f"{S.ATTR_CONTROLS} under the plant")
+        return out
+    ip = inst_prim.GetPath()
+    inst = UsdGeom.PointInstancer(inst_prim)
+    if not inst_prim.HasAPI(S.API_NAME):
+        add("warning", "DeformerAPI", ip, f"{S.API_NAME} is not applied")
+
+    # the ONE template prototype
+    protos = inst.GetPrototypesRel().GetTargets()
+    meshes = [p for p in protos if stage.GetPrimAtPath(p) and stage.GetPrimAtPath(p).IsA(UsdGeom.Mesh)]
+    if len(protos) != 1 or len(meshes) != 1:
+        add("error", "OneTemplate", ip, f"expected exactly one Mesh prototype, found {len(protos)} "
+            f"prototypes ({len(meshes)} Mesh)")
+    rel = inst_prim.GetRelationship(S.ATTR_TEMPLATE_REL)
+    tmpl_targets = rel.GetTargets() if rel else []
+    if protos and tmpl_targets and tmpl_targets[0] != protos[0]:
+        add("error", "OneTemplate", ip, f"{S.ATTR_TEMPLATE_REL} targets {tmpl_targets[0]}, "
+            f"the prototype is {protos[0]}")
+    n_template_meshes = sum(1 for p in Usd.PrimRange(inst_prim) if p.IsA(UsdGeom.Mesh))
+    if n_template_meshes != 1:
+        add("error", "OneTemplate", ip, f"{n_template_meshes} Mesh prims under the instancer, expected 1")
+
+    positions = inst.GetPositionsAttr().Get()
+    L = len(positions) if positions is not None else 0
+    idx = inst.GetProtoIndicesAttr().Get()
+    if idx is None or len(idx) != L or (L and np.any(np.asarray(idx) != 0)):
+        add("error", "InstanceArrays", ip, f"protoIndices must be {L} zeros")
+    for name, attr in (("orientations", inst.GetOrientationsAttr()), ("scales", inst.GetScalesAttr())):
+        v = attr.Get()
+        if v is None or len(v) != L:
+            add("error", "InstanceArrays", attr.GetPath(), f"expected {L} values, found "
+                f"{0 if v is None else len(v)}")
+    if inst.GetOrientationsAttr().GetTypeName().type.typeName != "VtArray<GfQuath>":
+        add("warning", "Orientations", inst.GetOrientationsAttr().GetPath(), "orientations should be quath[]")
+    qf = inst.GetOrientationsfAttr()
+    q = qf.Get() if qf.HasAuthoredValue() else inst.GetOrientationsAttr().Get()
+    if q is not None and len(q):
+        qn = np.linalg.norm(np.asarray(q, np.float64), axis=1)
+        if np.any(np.abs(qn - 1) > 1e-2):
+            add("warning", "Orientations", ip, f"{int((np.abs(qn - 1) > 1e-2).sum())} orientations are not unit quaternions")
+
+    controls = inst_prim.GetAttribute(S.ATTR_CONTROLS).Get()
+    K_auth = inst_prim.GetAttribute(S.ATTR_K)
+    K = len(controls) if controls is not None else 0
+    if not K_auth or not K_auth.HasAuthoredValue():
+        add("warning", "DeformerValues", ip, f"{S.ATTR_K} is not authored (readers without the plug-in need it)")
+    elif K_auth.Get() != K:
+        add("error", "DeformerValues", K_auth.GetPath(), f"K = {K_auth.Get()} but {K} template control points")
+    for name in (S.ATTR_SIGMA, S.ATTR_REG, S.ATTR_VARIANT, S.ATTR_KERNEL, S.ATTR_TARGETS_PRIMVAR):
+        a = inst_prim.GetAttribute(name)
+        if not a or not a.HasAuthoredValue():
+            add("warning", "DeformerValues", ip, f"{name} is not authored (readers without the plug-in "
+                "would see only a fallback)")
+    for name in (S.ATTR_SIGMA, S.ATTR_REG):
+        a = inst_prim.GetAttribute(name)
+        if a and a.Get() is not None and not (np.isfinite(a.Get()) and a.Get() > 0):
+            add("error", "DeformerValues", a.GetPath(), f"must be positive, is {a.Get()}")
+
+    pv_name = inst_prim.GetAttribute(S.ATTR_TARGETS_PRIMVAR)
+    pv_name = str(pv_name.Get()) if pv_name and pv_name.Get() else S.TARGETS_PRIMVAR
+    pv = UsdGeom.Primvar(inst_prim.GetAttribute(pv_name))
+    if not pv or not pv.GetAttr().IsValid():
+        add("error", "TargetsPrimvar", ip, f"no {pv_name} primvar")
+    else:
+        tv = pv.Get()
+        if pv.GetTypeName() != "float3[]":
+            add("error", "TargetsPrimvar", pv.GetAttr().GetPath(), f"type {pv.GetTypeName()}, expected float3[]")
+        if pv.GetInterpolation() != UsdGeom.Tokens.vertex:
+            add("error", "TargetsPrimvar", pv.GetAttr().GetPath(), f"interpolation '{pv.GetInterpolation()}', expected 'vertex'")
+        if pv.GetElementSize() != K:
+            add("error", "TargetsPrimvar", pv.GetAttr().GetPath(), f"elementSize {pv.GetElementSize()}, expected K = {K}")
+        n = 0 if tv is None else len(tv)
+        if n != L * K:
+            add("error", "TargetsPrimvar", pv.GetAttr().GetPath(), f"{n} values, expected {L} instances x {K} = {L * K}")
+        elif n and not np.isfinite(np.asarray(tv, np.float64)).all():
+            add("error", "TargetsPrimvar", pv.GetAttr().GetPath(), "NaN or inf values")
+
+    # the template mesh
+    if meshes:
+        mp = stage.GetPrimAtPath(meshes[0])
+        mesh = UsdGeom.Mesh(mp)
+        pts = mesh.GetPointsAttr().Get()
+        V = 0 if pts is None else len(pts)
+        counts = mesh.GetFaceVertexCountsAttr().Get()
+        fvi = mesh.GetFaceVertexIndicesAttr().Get()
+        if V == 0 or counts is None or not len(counts):
+            add("error", "TemplateMesh", mp.GetPath(), "the template has no points or faces")
+        else:
+            if np.any(np.asarray(counts) != 3):
+                add("error", "TemplateMesh", mp.GetPath(), "faces must be triangles")
+            f = np.asarray(fvi)
+            if f.size and (f.min() < 0 or f.max() >= V):
+                add("error", "TemplateMesh", mp.GetPath(), f"face indices outside 0..{V - 1}")
+            st = UsdGeom.PrimvarsAPI(mp).GetPrimvar("st")
+            if not st or st.Get() is None or len(st.Get()) != V:
+                add("error", "TemplateMesh", mp.GetPath(), "primvars:st must hold one UV per vertex")
+            if mesh.GetSubdivisionSchemeAttr().Get() != UsdGeom.Tokens.none:
+                add("warning", "TemplateMesh", mp.GetPath(), "subdivisionScheme should be 'none'")
+        bound = {}
+        for sub in UsdGeom.Subset.GetGeomSubsets(mesh, UsdGeom.Tokens.face, "materialBind"):
+            mat, _ = UsdShade.MaterialBindingAPI(sub.GetPrim()).ComputeBoundMaterial()
+            bound[sub.GetPrim().GetName()] = mat
+        for side in ("front", "back"):
+            if not bound.get(side):
+                add("error", "Materials", mp.GetPath(), f"no material bound to the '{side}' face subset")
+            elif not _has_preview_surface(bound[side]):
+                add("error", "Materials", bound[side].GetPath(), "material has no UsdPreviewSurface surface")
+            elif not _reads_st(bound[side]):
+                add("warning", "Materials", bound[side].GetPath(), "no UsdUVTexture read through primvars:st")
+        for p in Usd.PrimRange(root):
+            if p.GetTypeName() == "Shader" and UsdShade.Shader(p).GetIdAttr().Get() == "UsdUVTexture":
+                f = UsdShade.Shader(p).GetInput("file")
+                v = f.Get() if f else None
+                if v is not None and v.path and (v.path.startswith("/") or ":" in v.path.split("/")[0]):
+                    add("warning", "RelativeTextures", f.GetAttr().GetPath(), f"absolute texture path '{v.path}'")
+                if v is not None and v.path and not v.resolvedPath:
+                    add("error", "Textures", f.GetAttr().GetPath(), f"texture '{v.path}' does not resolve")
+
+    # stem: Mesh geometry, never UsdGeom.Cylinder (Blender drops its material)
+    for p in Usd.PrimRange(root):
+        if p.IsA(UsdGeom.Cylinder):
+            add("warning", "StemAsMesh", p.GetPath(), "Cylinder prim: DCCs drop its material; use Mesh")
+
+    # the baked representation, if offered
+    vset = root.GetVariantSets().GetVariantSet("leafRepresentation")
+    if vset and vset.IsValid() and "baked" in vset.GetVariantNames():
+        original = vset.GetVariantSelection()
+        try:
+            vset.SetVariantSelection("baked")
+            baked = [p for p in Usd.PrimRange(root) if p.IsA(UsdGeom.Mesh) and not p.IsAbstract()
+                     and "BakedLeaves" in str(p.GetPath()) and p.GetParent().GetName() == "BakedLeaves"]
+            if len(baked) != L:
+                add("error", "BakedVariant", root.GetPath(), f"variant 'baked' has {len(baked)} leaf meshes, expected {L}")
+        finally:
+            vset.SetVariantSelection(original)
+    return out
+
+
+def _has_preview_surface(material) -> bool:
+    from pxr import UsdShade
+    src = material.ComputeSurfaceSource()
+    shader = src[0] if src else None
+    return bool(shader) and UsdShade.Shader(shader.GetPrim()).GetIdAttr().Get() == "UsdPreviewSurface"
+
+
+def _reads_st(material) -> bool:
+    from pxr import Usd, UsdShade
+    ok_tex = ok_reader = False
+    for p in Usd.PrimRange(material.GetPrim()):
+        sh = UsdShade.Shader(p)
+        if not sh:
+            continue
+        if sh.GetIdAttr().Get() == "UsdUVTexture":
+            ok_tex = True
+        if sh.GetIdAttr().Get() == "UsdPrimvarReader_float2":
+            v = sh.GetInput("varname")
+            ok_reader = ok_reader or (v is not None and str(v.Get()) == "st")
+    return ok_tex and ok_reader

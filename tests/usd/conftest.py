@@ -1,0 +1,29 @@
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))
+import synthetic as syn  # noqa: E402
+
+from leaffit_usd.usd.assemble import asset_from_results  # noqa: E402
+from leaffit_usd.usd.writer import LeafTextures  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def results():
+    t = syn.template_mesh()
+    f = syn.leaf_fits(t)
+    return t, f, syn.stem(), syn.frame()
+
+
+@pytest.fixture(scope="session")
+def asset(results):
+    t, f, s, fr = results
+    return asset_from_results(t, f, s, fr, up_axis="Y", input_sha256="ab" * 32)
+
+
+@pytest.fixture(scope="session")
+def textures(results):
+    t = results[0]
+    return LeafTextures(t.front_texture, t.back_texture)
