@@ -170,6 +170,7 @@ class ManualSegmenter:
         self.operations: list[dict] = []
         self._undo: list[EditState] = []  # state before each operation
         self._redo: list[tuple[dict, EditState]] = []
+        self._brush_cache: tuple = (None, (), None)
 
     # ---- selections ---------------------------------------------------------------------
     def drag_mask(self, source: int, target: int) -> np.ndarray:
@@ -179,9 +180,17 @@ class ManualSegmenter:
 
     def brush_mask(self, centers, radius: float) -> np.ndarray:
         """(N,) bool: union over centres c of ``D_c[g] <= radius`` (working units)."""
-        mask = np.zeros(self.n, bool)
-        for c in centers:
+        centers = tuple(int(c) for c in centers)
+        # A stroke grows one centre at a time: reuse the previous union when it is a prefix
+        # (a boolean OR, so the result is identical with or without the cache).
+        r0, c0, m0 = self._brush_cache
+        if r0 == radius and c0 == centers[:len(c0)] and c0:
+            mask, start = m0.copy(), len(c0)
+        else:
+            mask, start = np.zeros(self.n, bool), 0
+        for c in centers[start:]:
             mask |= self.geodesics.distance(c) <= radius
+        self._brush_cache = (radius, centers, mask.copy())
         return mask
 
     def _check_index(self, op_no, name, g):

@@ -1,0 +1,147 @@
+"""``leaffit-usd edit INPUT``: interactive manual segmentation in a local web page."""
+from __future__ import annotations
+
+import logging
+import os
+import signal
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+
+NAME = "edit"
+HELP = "fix a segmentation by hand in a local web page (geodesic drag and brush tools)"
+DESCRIPTION = """Open the plant in a local web page (127.0.0.1 only, a free port, a random token in
+the URL) with the paper's geodesic selection tools:
+
+  drag   press on a leaf tip and drag toward its base: selects D_p[g] <= D_p[cursor]
+  brush  paint with a geodesic radius (fraction of the plant height): add or erase
+
+then assign the selection to a new leaf, an existing leaf or the stem; merge, split and delete
+leaves; undo/redo. Save writes two files (never a path chosen by the page):
+
+  EDITS.json   the operations, replayable:  leaffit-usd segment INPUT --edits EDITS.json
+  LABELS.npz   the labels (int32 per Gaussian, file order, 0 = stem), usable with --labels
+
+Defaults: next to INPUT as <stem>.edits.json and <stem>.labels.npz. Stop with Ctrl-C."""
+ORDER = 25
+
+log = logging.getLogger("leaffit_usd")
+
+
+def add_arguments(p) -> None:
+    from leaffit_usd.segment.manual import N_SAMPLES
+
+    p.add_argument("input", metavar="INPUT", help="3DGS capture (.ply or USD)")
+    p.add_argument("--labels", metavar="LABELS.npz",
+                   help="start from this segmentation (e.g. from 'leaffit-usd segment'); "
+                        "default: everything unassigned")
+    p.add_argument("--edits", metavar="EDITS.json",
+                   help="continue a session: replay these edits first (they can be undone)")
+    p.add_argument("--edits-out", metavar="PATH", help="where Save writes the edits (default: INPUT stem + .edits.json)")
+    p.add_argument("--labels-out", metavar="PATH", help="where Save writes the labels (default: INPUT stem + .labels.npz)")
+    p.add_argument("--port", type=int, default=0, help="TCP port on 127.0.0.1 (default 0: a free port)")
+    p.add_argument("--no-browser", action="store_true", help="print the URL only, do not open a browser")
+    p.add_argument("--samples", type=int, default=N_SAMPLES,
+                   help=f"geodesic subsample size N_s (default {N_SAMPLES}, the paper's)")
+    p.add_argument("--min-opacity", type=float, default=0.0,
+                   help="Gaussians less opaque than this cannot be picked (default 0: all)")
+
+
+def read_labels_file(path, cloud) -> tuple[np.ndarray, int | None]:
+    """Labels (cloud order, int32) and root index (cloud order or None) from a segmentation .npz.
+
+    The file holds ``labels`` (one int per Gaussian of the input file, file order, >= 0) and
+    optionally ``root_index`` (array or inside the ``__json__`` record of ``save_value``).
+    """
+    import json
+
+    from leaffit_usd.errors import InputFileError
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if "labels" not in z.files:
+                raise InputFileError(path, "has no 'labels' array (expected a segmentation .npz)")
+            labels = np.asarray(z["labels"])
+            root = None
+            if "root_index" in z.files:
+                root = int(z["root_index"])
+            elif "__json__" in z.files:
+                root = json.loads(str(z["__json__"])).get("root_index")
+    except (OSError, ValueError) as e:
+        raise InputFileError(path, f"not a readable .npz ({e})") from None
+    if labels.ndim != 1 or labels.shape[0] != cloud.file_count:
+        raise InputFileError(path, f"has {labels.shape} labels; the input has {cloud.file_count} Gaussians")
+    if not np.issubdtype(labels.dtype, np.integer) or (labels.size and labels.min() < 0):
+        raise InputFileError(path, "labels must be integers >= 0 (0 = stem)")
+    root_cloud = None
+    if root is not None and 0 <= int(root) < cloud.file_count:
+        hit = np.flatnonzero(cloud.file_index == int(root))
+        root_cloud = int(hit[0]) if hit.size else None
+    return labels[cloud.file_index].astype(np.int32), root_cloud
+
+
+def _open_browser(url: str) -> None:
+    """Open ``url`` in a browser if one can show it (never a text browser blocking the terminal)."""
+    import webbrowser
+
+    graphical = sys.platform in ("darwin", "win32") or os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+    if not graphical:
+        return
+    threading.Thread(target=webbrowser.open, args=(url,), daemon=True).start()
+
+
+def _interrupt(*_):
+    raise KeyboardInterrupt
+
+
+def run(args) -> int:
+    from leaffit_usd.errors import ParameterError
+    from leaffit_usd.segment.edits import load_edits, to_cloud_operations
+    from leaffit_usd.splats import load_cloud
+    from leaffit_usd.viewer.server import ViewerServer, build_session
+
+    if not 0 <= args.port <= 65535:
+        raise ParameterError("--port", "a port number in [0, 65535]", args.port)
+    if args.samples < 16:
+        raise ParameterError("--samples", "at least 16", args.samples)
+    inp = Path(args.input)
+    cloud = load_cloud(inp)
+    if args.labels:
+        labels, root = read_labels_file(args.labels, cloud)
+    else:
+        labels, root = np.zeros(len(cloud), np.int32), None
+        log.info("edit: starting with every Gaussian unassigned (run 'leaffit-usd segment' first and "
+                 "pass --labels for the automatic leaves)")
+    edits = load_edits(args.edits, inp) if args.edits else None
+    stem = inp.name.rsplit(".", 1)[0]
+    edits_out = Path(args.edits_out) if args.edits_out else inp.with_name(stem + ".edits.json")
+    labels_out = Path(args.labels_out) if args.labels_out else inp.with_name(stem + ".labels.npz")
+    session = build_session(cloud, labels, inp, edits_out, labels_out, root_index=root,
+                            height=edits.height if edits else None,
+                            n_samples=edits.n_samples if edits else args.samples,
+                            min_opacity=args.min_opacity)
+    if edits is not None:
+        session.segmenter.replay(to_cloud_operations(edits.operations, cloud))
+        session.saved_ops = len(session.segmenter.operations)
+        log.info("edit: replayed %d operations from %s", len(edits.operations), args.edits)
+    server = ViewerServer(session, port=args.port)
+    print(f"leaffit-usd edit: open {server.url}", flush=True)
+    print("  (local only; the token in the URL is required; Ctrl-C to stop)", flush=True)
+    if not args.no_browser:
+        _open_browser(server.url)
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _interrupt)  # stop as cleanly as on Ctrl-C
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+    if len(session.segmenter.operations) != session.saved_ops and session.segmenter.operations:
+        log.warning("edit: stopped with %d unsaved operations", len(session.segmenter.operations))
+    print("leaffit-usd edit: stopped", flush=True)
+    return 0

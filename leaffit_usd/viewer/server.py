@@ -1,0 +1,376 @@
+"""The local web server behind ``leaffit-usd edit``: one plant, one editing session, loopback only.
+
+Security model (the server edits files on the user's disk, so it trusts nothing from the page):
+
+* bound to 127.0.0.1 on a free port; requests from any other address are refused (403);
+* a random token (``secrets.token_urlsafe``) is the first path segment of every URL
+  (``http://127.0.0.1:PORT/<token>/``); relative URLs in the page keep it, so scripts, data and
+  API calls all carry it; anything else gets 403. A Host header that is not a loopback name is
+  refused too (DNS rebinding);
+* request bodies are bounded (``MAX_BODY`` bytes, 413 beyond);
+* no file path is ever read from a request: Save writes the two output paths fixed when the
+  server was started (next to the input, or given on the command line);
+* a strict Content-Security-Policy (no inline script, same-origin only) on every response.
+
+API (all under ``/<token>/``; JSON unless said otherwise):
+
+* ``GET  ``                 the page; ``GET static/<file>`` its scripts and styles
+* ``GET  api/meta``         counts, plant height, up axis, output file names, defaults
+* ``GET  api/points``       binary: float32 (N, 3) positions (display frame, see below) then
+                            uint8 (N, 3) RGB colours
+* ``GET  api/state``        labels (base64 int32 LE), selection (base64 packbits), leaves, undo/redo
+* ``POST api/pick``         ``{origin: [3], direction: [3]}`` (display frame) -> ``{index, t}``
+* ``POST api/preview``      ``{op}`` -> selection the op would give (not recorded)
+* ``POST api/op``           ``{op}`` -> apply and record; returns the state
+* ``POST api/undo|redo``    -> state;  ``POST api/save`` -> written file names
+* ``POST api/stop``         stop the server (the page's Quit button)
+
+Display frame: ``(x_input - centre) / height`` — the input frame translated and scaled so the
+page works with numbers near 1 (float32-friendly); the server maps rays back exactly.
+"""
+from __future__ import annotations
+
+import base64
+import hmac
+import ipaddress
+import logging
+import secrets
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from leaffit_usd.errors import UserError
+from leaffit_usd.io_util import atomic_path
+
+log = logging.getLogger("leaffit_usd")
+
+MAX_BODY = 256 * 1024  # bytes; the largest legitimate request is a long brush stroke (~10k centres)
+STATIC_DIR = Path(__file__).with_name("static")
+CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; "
+       "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
+LOOPBACK_HOSTS = {"127.0.0.1", "localhost", "::1", "[::1]"}
+
+
+def is_loopback(addr: str | None) -> bool:
+    """True for 127.0.0.0/8 and ::1 (IPv4-mapped too)."""
+    if not addr:
+        return False
+    try:
+        ip = ipaddress.ip_address(addr.split("%")[0])
+    except ValueError:
+        return False
+    if isinstance(ip, ipaddress.IPv6Address) and ip.ipv4_mapped is not None:
+        ip = ip.ipv4_mapped
+    return ip.is_loopback
+
+
+@dataclass
+class ViewerSession:
+    """Everything the server serves and edits: one cloud, its segmenter, its BVH, output paths.
+
+    cloud : GaussianCloud, input frame (as loaded)
+    segmenter : ManualSegmenter on ``cloud.means`` (cloud order)
+    bvh : GaussianBVH on the cloud (input frame)
+    edits_template : Edits with the input hash, height, samples and base labels filled in
+    edits_out, labels_out : where Save writes (fixed at start; never from a request)
+    root_index : root Gaussian (cloud order) to carry into the labels file, or None
+    up : (3,) unit up axis, input frame (for the camera)
+    """
+
+    cloud: object
+    segmenter: object
+    bvh: object
+    edits_template: object
+    edits_out: Path
+    labels_out: Path
+    root_index: int | None = None
+    up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    input_name: str = ""
+    saved_ops: int = 0
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def __post_init__(self):
+        m = np.asarray(self.cloud.means, np.float64)
+        self.centre = (m.min(0) + m.max(0)) / 2 if len(m) else np.zeros(3)
+        self.height = float(self.edits_template.height)
+
+    # ---- payloads --------------------------------------------------------------------------
+    def meta(self) -> dict:
+        from leaffit_usd.segment.manual import OPERATIONS
+
+        return {
+            "n": len(self.cloud), "input": self.input_name, "height": self.height,
+            "up": [float(v) for v in self.up], "edits_out": self.edits_out.name,
+            "labels_out": self.labels_out.name, "brush_radius": 0.05,
+            "operations": list(OPERATIONS), "samples": int(len(self.segmenter.geodesics.samples)),
+        }
+
+    def points_bytes(self) -> bytes:
+        pos = ((np.asarray(self.cloud.means, np.float64) - self.centre) / self.height).astype("<f4")
+        rgb = np.round(self.cloud.colors * 255).astype(np.uint8)
+        return pos.tobytes() + rgb.tobytes()
+
+    def state(self) -> dict:
+        seg = self.segmenter
+        labels = seg.labels
+        counts = np.bincount(labels, minlength=1)
+        leaves = [{"label": int(k), "count": int(c)} for k, c in enumerate(counts) if k > 0 and c > 0]
+        return {
+            "labels": base64.b64encode(labels.astype("<i4").tobytes()).decode(),
+            "selection": _pack(seg.selection), "selected": int(seg.selection.sum()),
+            "leaves": leaves, "stem": int(counts[0]),
+            "can_undo": seg.can_undo, "can_redo": seg.can_redo, "n_ops": len(seg.operations),
+            "dirty": len(seg.operations) != self.saved_ops,
+        }
+
+    # ---- actions ---------------------------------------------------------------------------
+    def pick(self, origin, direction) -> dict:
+        o = np.asarray(origin, np.float64) * self.height + self.centre
+        d = np.asarray(direction, np.float64)
+        r = self.bvh.pick(o, d)
+        return {"index": r.index, "t": (r.t / self.height) if r.hit else None}
+
+    def save(self) -> dict:
+        from leaffit_usd.segment.edits import Edits, save_edits, to_file_operations
+
+        seg = self.segmenter
+        t = self.edits_template
+        edits = Edits(input_sha256=t.input_sha256, n_gaussians=t.n_gaussians, height=t.height,
+                      n_samples=t.n_samples, operations=to_file_operations(seg.operations, self.cloud),
+                      base_labels_sha256=t.base_labels_sha256, base_leaves=t.base_leaves,
+                      input_name=t.input_name)
+        labels = self.cloud.to_file_order(seg.final_labels().astype(np.int32), fill=0)
+        extra = {}
+        if self.root_index is not None:
+            extra["root_index"] = np.int64(self.cloud.file_index[self.root_index])
+        with atomic_path(self.labels_out) as tmp:
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, labels=labels, **extra)
+        save_edits(edits, self.edits_out)
+        self.saved_ops = len(seg.operations)
+        log.info("saved %s (%d operations) and %s (%d leaves)", self.edits_out, len(edits.operations),
+                 self.labels_out, int(labels.max(initial=0)))
+        return {"edits": self.edits_out.name, "labels": self.labels_out.name,
+                "operations": len(edits.operations), "leaves": int(labels.max(initial=0))}
+
+
+def _pack(mask: np.ndarray) -> str:
+    """(N,) bool -> base64 of np.packbits (bit 7 of byte 0 = Gaussian 0)."""
+    return base64.b64encode(np.packbits(mask).tobytes()).decode()
+
+
+def create_app(session: ViewerSession, token: str, max_body: int = MAX_BODY, on_stop=None):
+    """The flask app serving ``session`` under ``/<token>/``. ``on_stop()`` is called by api/stop."""
+    from flask import Flask, Response, abort, jsonify, request, send_from_directory
+
+    app = Flask("leaffit_usd.viewer", static_folder=None)
+    app.config["MAX_CONTENT_LENGTH"] = max_body
+    app.json.sort_keys = False
+
+    @app.before_request
+    def _guard():
+        if not is_loopback(request.remote_addr):
+            abort(403, "only local clients may connect")
+        host = (request.host or "").rsplit(":", 1)[0] if not (request.host or "").startswith("[") \
+            else request.host.split("]")[0] + "]"
+        if host not in LOOPBACK_HOSTS:
+            abort(403, "bad Host header")
+        parts = request.path.split("/", 2)
+        if len(parts) < 2 or not hmac.compare_digest(parts[1].encode(), token.encode()):
+            abort(403, "missing or wrong token")
+        if request.content_length is not None and request.content_length > max_body:
+            abort(413)
+
+    @app.after_request
+    def _headers(resp):
+        resp.headers["Content-Security-Policy"] = CSP
+        resp.headers["X-Content-Type-Options"] = "nosniff"
+        resp.headers["Referrer-Policy"] = "no-referrer"
+        resp.headers["Cache-Control"] = "no-store"
+        return resp
+
+    @app.errorhandler(UserError)
+    def _user_error(e):
+        return jsonify(error=str(e)), 400
+
+    def body() -> dict:
+        data = request.get_json(silent=True)  # raises 413 past MAX_CONTENT_LENGTH
+        if not isinstance(data, dict):
+            abort(400, "expected a JSON object")
+        return data
+
+    def op_of(data):
+        op = data.get("op")
+        if not isinstance(op, dict):
+            abort(400, "expected {\"op\": {...}}")
+        return op
+
+    base = f"/{token}"
+
+    @app.get(base + "/")
+    def index():
+        return send_from_directory(STATIC_DIR, "index.html")
+
+    @app.get(base + "/static/<path:name>")
+    def static_file(name):
+        if name not in STATIC_FILES:
+            abort(404)
+        return send_from_directory(STATIC_DIR, name, mimetype=STATIC_FILES[name])
+
+    @app.get(base + "/api/meta")
+    def meta():
+        return jsonify(session.meta())
+
+    @app.get(base + "/api/points")
+    def points():
+        return Response(session.points_bytes(), mimetype="application/octet-stream")
+
+    @app.get(base + "/api/state")
+    def state():
+        with session.lock:
+            return jsonify(session.state())
+
+    @app.post(base + "/api/pick")
+    def pick():
+        data = body()
+        try:
+            o = np.asarray(data["origin"], np.float64).reshape(3)
+            d = np.asarray(data["direction"], np.float64).reshape(3)
+        except (KeyError, TypeError, ValueError):
+            abort(400, "expected {origin: [x, y, z], direction: [x, y, z]}")
+        t0 = time.perf_counter()
+        with session.lock:
+            out = session.pick(o, d)
+        out["ms"] = (time.perf_counter() - t0) * 1e3
+        return jsonify(out)
+
+    @app.post(base + "/api/preview")
+    def preview():
+        op = op_of(body())
+        t0 = time.perf_counter()
+        with session.lock:
+            sel = session.segmenter.preview(op)
+        return jsonify(selection=_pack(sel), selected=int(sel.sum()), ms=(time.perf_counter() - t0) * 1e3)
+
+    @app.post(base + "/api/op")
+    def apply_op():
+        op = op_of(body())
+        t0 = time.perf_counter()
+        with session.lock:
+            session.segmenter.apply(op, op_no=len(session.segmenter.operations))
+            out = session.state()
+        out["ms"] = (time.perf_counter() - t0) * 1e3
+        return jsonify(out)
+
+    @app.post(base + "/api/undo")
+    def undo():
+        with session.lock:
+            session.segmenter.undo()
+            return jsonify(session.state())
+
+    @app.post(base + "/api/redo")
+    def redo():
+        with session.lock:
+            session.segmenter.redo()
+            return jsonify(session.state())
+
+    @app.post(base + "/api/save")
+    def save():
+        with session.lock:
+            out = session.save()
+            out["state"] = session.state()
+        return jsonify(out)
+
+    @app.post(base + "/api/stop")
+    def stop():
+        if on_stop is not None:
+            threading.Thread(target=on_stop, daemon=True).start()
+        return jsonify(stopping=True)
+
+    return app
+
+
+STATIC_FILES = {
+    "index.html": "text/html",
+    "app.js": "text/javascript",
+    "style.css": "text/css",
+    "three.bundle.min.js": "text/javascript",
+}
+
+
+class ViewerServer:
+    """Serve a :class:`ViewerSession` on 127.0.0.1 (port 0 = a free port) in the calling thread.
+
+    ``url`` is ready after construction; :meth:`serve_forever` blocks until :meth:`stop` (or
+    Ctrl-C, which the caller catches). :meth:`start_background` runs it in a daemon thread (tests).
+    """
+
+    def __init__(self, session: ViewerSession, port: int = 0, token: str | None = None,
+                 max_body: int = MAX_BODY):
+        from werkzeug.serving import make_server
+
+        self.token = token or secrets.token_urlsafe(24)
+        self.app = create_app(session, self.token, max_body=max_body, on_stop=self.stop)
+        self._server = make_server("127.0.0.1", int(port), self.app, threaded=True)
+        self.port = self._server.server_port
+        self.url = f"http://127.0.0.1:{self.port}/{self.token}/"
+        self._thread = None
+
+    def serve_forever(self) -> None:
+        try:
+            self._server.serve_forever(poll_interval=0.2)
+        finally:
+            self._server.server_close()
+
+    def start_background(self) -> "ViewerServer":
+        self._thread = threading.Thread(target=self.serve_forever, daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._server.shutdown()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+
+
+def build_session(cloud, labels, input_path, edits_out, labels_out, root_index=None,
+                  height=None, n_samples=None, solver_factory=None, min_opacity: float = 0.0):
+    """Make a :class:`ViewerSession` for ``cloud`` (input frame) starting from ``labels`` (cloud order).
+
+    input_path : the input file (hashed into the edits); height : plant height in input units
+    (default: :func:`leaffit_usd.segment.edits.plant_height`); min_opacity : Gaussians below it
+    are not pickable (floaters).
+    """
+    from leaffit_usd.io_util import file_sha256
+    from leaffit_usd.segment.edits import Edits, labels_sha256, plant_height
+    from leaffit_usd.segment.manual import N_SAMPLES, ManualSegmenter
+    from leaffit_usd.segment.picking import GaussianBVH
+
+    t0 = time.perf_counter()
+    height = float(height or plant_height(cloud.means))
+    n_samples = int(n_samples or N_SAMPLES)
+    labels = np.asarray(labels, np.int32)
+    template = Edits(input_sha256=file_sha256(input_path), n_gaussians=int(cloud.file_count),
+                     height=height, n_samples=n_samples,
+                     base_labels_sha256=labels_sha256(cloud.to_file_order(labels)),
+                     base_leaves=int(labels.max(initial=0)), input_name=Path(input_path).name)
+    seg = ManualSegmenter(cloud.means, labels, height, n_samples=n_samples, solver_factory=solver_factory)
+    t1 = time.perf_counter()
+    pickable = cloud.opacities >= min_opacity if min_opacity > 0 else None
+    bvh = GaussianBVH.from_cloud(cloud, pickable=pickable)
+    t2 = time.perf_counter()
+    log.info("edit: geodesics on %d samples in %.2f s, BVH over %d Gaussians in %.2f s",
+             len(seg.geodesics.samples), t1 - t0, bvh.n_pickable, t2 - t1)
+    try:
+        from leaffit_usd.splats.frame import estimate_up
+
+        up = np.asarray(estimate_up(cloud.means), np.float64)
+    except ImportError:
+        up = np.array([0.0, 0.0, 1.0])
+    return ViewerSession(cloud=cloud, segmenter=seg, bvh=bvh, edits_template=template,
+                         edits_out=Path(edits_out), labels_out=Path(labels_out),
+                         root_index=root_index, up=up, input_name=Path(input_path).name)
+

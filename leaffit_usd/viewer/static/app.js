@@ -1,0 +1,371 @@
+// leaffit-usd edit — the page. Talks only to its own server (relative URLs keep the token).
+// Picking and geodesic selections run server-side (BVH + heat geodesics); the page draws points,
+// sends rays, and shows the selection the server returns.
+import * as THREE from './three.bundle.min.js';
+
+const $ = (id) => document.getElementById(id);
+const statusEl = $('status');
+
+function setStatus(text, error = false) {
+  statusEl.textContent = text;
+  statusEl.classList.toggle('error', error);
+}
+
+async function api(path, body) {
+  const init = body === undefined ? {} : {
+    method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify(body),
+  };
+  const r = await fetch('api/' + path, init);
+  const type = r.headers.get('Content-Type') || '';
+  if (!r.ok) {
+    let msg = `${r.status} ${r.statusText}`;
+    if (type.includes('json')) msg = (await r.json()).error || msg;
+    throw new Error(msg);
+  }
+  return type.includes('json') ? r.json() : r.arrayBuffer();
+}
+
+const b64bytes = (s) => Uint8Array.from(atob(s), (c) => c.charCodeAt(0));
+
+// ---- state ------------------------------------------------------------------------------
+const S = {
+  n: 0, meta: null, positions: null, rgb: null,
+  labels: null, selBits: null, previewBits: null, leaves: [], stemCount: 0,
+  tool: 'brush', busy: false, gesture: null, lastPickMs: 0, lastUpdateMs: 0, ready: false,
+};
+
+function selected(i, bits) {
+  return (bits[i >> 3] >> (7 - (i & 7))) & 1;
+}
+
+function leafColor(label) {
+  // golden-angle hues: neighbouring labels get distinct colours
+  const c = new THREE.Color();
+  c.setHSL((label * 0.61803398875 + 0.08) % 1, 0.62, 0.52);
+  return c;
+}
+
+// ---- scene ------------------------------------------------------------------------------
+const view = $('view');
+const renderer = new THREE.WebGLRenderer({ antialias: false, preserveDrawingBuffer: true });
+renderer.setPixelRatio(window.devicePixelRatio || 1);
+view.appendChild(renderer.domElement);
+const scene = new THREE.Scene();
+scene.background = new THREE.Color(0x1d1f21);
+const camera = new THREE.PerspectiveCamera(40, 1, 0.005, 50);
+const controls = new THREE.OrbitControls(camera, renderer.domElement);
+controls.enableDamping = false;
+const geometry = new THREE.BufferGeometry();
+const material = new THREE.PointsMaterial({ size: 0.006, vertexColors: true, sizeAttenuation: true });
+const points = new THREE.Points(geometry, material);
+scene.add(points);
+
+let renderQueued = false;
+function render() {
+  if (renderQueued) return;
+  renderQueued = true;
+  requestAnimationFrame(() => { renderQueued = false; renderer.render(scene, camera); });
+}
+controls.addEventListener('change', render);
+
+function resize() {
+  const w = view.clientWidth || 1, h = view.clientHeight || 1;
+  renderer.setSize(w, h);
+  camera.aspect = w / h;
+  camera.updateProjectionMatrix();
+  render();
+}
+new ResizeObserver(resize).observe(view);
+
+function setTool(tool) {
+  S.tool = tool;
+  if (tool === 'orbit') {
+    controls.mouseButtons = { LEFT: THREE.MOUSE.ROTATE, MIDDLE: THREE.MOUSE.DOLLY, RIGHT: THREE.MOUSE.PAN };
+  } else {
+    controls.mouseButtons = { LEFT: -1, MIDDLE: THREE.MOUSE.PAN, RIGHT: THREE.MOUSE.ROTATE };
+  }
+  renderer.domElement.style.cursor = tool === 'orbit' ? 'grab' : 'crosshair';
+}
+
+function recolor() {
+  if (!S.labels) return;
+  const col = geometry.getAttribute('color');
+  const a = col.array;
+  const rgbMode = $('rgb').checked;
+  const bits = S.previewBits || S.selBits;
+  const cache = new Map();
+  for (let i = 0; i < S.n; i++) {
+    const o = 3 * i;
+    if (bits && selected(i, bits)) { a[o] = 1.0; a[o + 1] = 0.86; a[o + 2] = 0.1; continue; }
+    const lab = S.labels[i];
+    if (rgbMode || lab === 0) {
+      const k = rgbMode ? 1.0 : 0.45;
+      a[o] = k * S.rgb[o] / 255; a[o + 1] = k * S.rgb[o + 1] / 255; a[o + 2] = k * S.rgb[o + 2] / 255;
+      continue;
+    }
+    let c = cache.get(lab);
+    if (!c) { c = leafColor(lab); cache.set(lab, c); }
+    a[o] = c.r; a[o + 1] = c.g; a[o + 2] = c.b;
+  }
+  col.needsUpdate = true;
+  render();
+}
+
+// ---- state from the server ----------------------------------------------------------------
+function applyState(st) {
+  S.labels = new Int32Array(b64bytes(st.labels).buffer);
+  S.selBits = b64bytes(st.selection);
+  S.previewBits = null;
+  S.leaves = st.leaves;
+  S.stemCount = st.stem;
+  $('sel-count').textContent = st.selected;
+  $('undo').disabled = !st.can_undo;
+  $('redo').disabled = !st.can_redo;
+  $('save').textContent = st.dirty ? 'Save*' : 'Save';
+  renderLeafList();
+  recolor();
+  S.state = st;
+}
+
+function renderLeafList() {
+  const box = $('leaves');
+  const checked = new Set([...box.querySelectorAll('input:checked')].map((e) => +e.dataset.label));
+  box.textContent = '';
+  const rows = [{ label: 0, count: S.stemCount }, ...S.leaves];
+  for (const { label, count } of rows) {
+    const row = document.createElement('div');
+    row.className = 'leaf';
+    row.dataset.label = label;
+    const cb = document.createElement('input');
+    cb.type = 'checkbox';
+    cb.dataset.label = label;
+    cb.disabled = label === 0;
+    cb.checked = checked.has(label);
+    const sw = document.createElement('span');
+    sw.className = 'swatch';
+    sw.style.background = label === 0 ? '#555' : '#' + leafColor(label).getHexString();
+    const name = document.createElement('span');
+    name.textContent = label === 0 ? `Stem / unassigned (${count})` : `Leaf ${label} (${count})`;
+    name.title = 'click: select this leaf (Shift: add)';
+    name.addEventListener('click', (e) =>
+      runOp({ op: 'select_leaf', label, mode: e.shiftKey ? 'add' : 'replace' }));
+    row.append(cb, sw, name);
+    box.append(row);
+  }
+  $('leaf-count').textContent = `(${S.leaves.length})`;
+  const target = $('target');
+  const keep = target.value;
+  target.textContent = '';
+  const opts = [['new', 'new leaf'], ['0', 'stem'], ...S.leaves.map((l) => [String(l.label), `leaf ${l.label}`])];
+  for (const [v, t] of opts) {
+    const o = document.createElement('option');
+    o.value = v; o.textContent = t;
+    target.append(o);
+  }
+  if ([...target.options].some((o) => o.value === keep)) target.value = keep;
+}
+
+function checkedLeaves() {
+  return [...$('leaves').querySelectorAll('input:checked')].map((e) => +e.dataset.label).sort((a, b) => a - b);
+}
+
+async function runOp(op) {
+  try {
+    const st = await api('op', { op });
+    S.lastUpdateMs = st.ms;
+    applyState(st);
+    status();
+  } catch (e) { setStatus(String(e.message || e), true); }
+}
+
+function status(extra = '') {
+  setStatus(`${S.n} Gaussians · ${S.leaves.length} leaves · ${S.state ? S.state.n_ops : 0} edits\n` +
+    `pick ${S.lastPickMs.toFixed(1)} ms · update ${S.lastUpdateMs.toFixed(1)} ms` + (extra ? `\n${extra}` : ''));
+}
+
+// ---- picking and tools ------------------------------------------------------------------
+const raycaster = new THREE.Raycaster();
+function rayAt(clientX, clientY) {
+  const r = renderer.domElement.getBoundingClientRect();
+  const ndc = new THREE.Vector2(((clientX - r.left) / r.width) * 2 - 1, -((clientY - r.top) / r.height) * 2 + 1);
+  raycaster.setFromCamera(ndc, camera);
+  return { origin: raycaster.ray.origin.toArray(), direction: raycaster.ray.direction.toArray() };
+}
+
+async function pickAt(x, y) {
+  const res = await api('pick', rayAt(x, y));
+  S.lastPickMs = res.ms;
+  return res.index;
+}
+
+function currentMode(e) {
+  if (e.shiftKey) return 'add';
+  if (e.altKey) return 'erase';
+  return document.querySelector('input[name=mode]:checked').value;
+}
+
+async function step() {
+  // process the latest pointer position of the gesture (one request in flight at a time)
+  const g = S.gesture;
+  if (!g || S.busy || !g.pending) return;
+  const { x, y } = g.pending;
+  g.pending = null;
+  S.busy = true;
+  try {
+    const idx = await pickAt(x, y);
+    if (idx >= 0) {
+      if (g.op.op === 'drag') g.op.target = idx;
+      else if (g.op.centers[g.op.centers.length - 1] !== idx) g.op.centers.push(idx);
+      const res = await api('preview', { op: g.op });
+      S.lastUpdateMs = res.ms;
+      if (S.gesture === g) {
+        S.previewBits = b64bytes(res.selection);
+        $('sel-count').textContent = res.selected;
+        recolor();
+      }
+      status();
+    }
+  } catch (e) { setStatus(String(e.message || e), true); }
+  S.busy = false;
+  if (g.pending) step();
+  else if (g.finish) g.finish();
+}
+
+renderer.domElement.addEventListener('pointerdown', async (e) => {
+  if (e.button !== 0 || S.tool === 'orbit' || !S.ready) return;
+  e.preventDefault();
+  const radius = +$('radius').value;
+  const mode = currentMode(e);
+  const g = { op: null, pending: null, finish: null };
+  S.gesture = g;
+  S.busy = true;
+  let idx;
+  try { idx = await pickAt(e.clientX, e.clientY); } catch (err) { setStatus(String(err), true); }
+  S.busy = false;
+  if (!(idx >= 0)) { S.gesture = null; setStatus('nothing under the cursor'); return; }
+  g.op = S.tool === 'drag'
+    ? { op: 'drag', source: idx, target: idx, mode }
+    : { op: 'brush', centers: [idx], radius, mode };
+  g.pending = { x: e.clientX, y: e.clientY };
+  if (!g.released) step();
+  if (g.released) commit(g);
+});
+
+renderer.domElement.addEventListener('pointermove', (e) => {
+  const g = S.gesture;
+  if (!g || !g.op) return;
+  g.pending = { x: e.clientX, y: e.clientY };
+  step();
+});
+
+function commit(g) {
+  const done = () => {
+    if (S.gesture !== g) return;
+    S.gesture = null;
+    runOp(g.op);
+  };
+  if (S.busy || g.pending) { g.finish = done; if (!S.busy) step(); } else done();
+}
+
+window.addEventListener('pointerup', (e) => {
+  const g = S.gesture;
+  if (!g || e.button !== 0) return;
+  g.released = true;
+  if (g.op) commit(g);
+});
+
+// ---- buttons and keys -------------------------------------------------------------------
+function assign() {
+  const v = $('target').value;
+  runOp({ op: 'assign', label: v === 'new' ? 'new' : +v });
+}
+$('assign').addEventListener('click', assign);
+$('clear').addEventListener('click', () => runOp({ op: 'clear' }));
+$('merge').addEventListener('click', () => {
+  const ls = checkedLeaves();
+  if (ls.length < 2) return setStatus('check at least two leaves to merge', true);
+  runOp({ op: 'merge', labels: ls });
+});
+$('split').addEventListener('click', () => {
+  const ls = checkedLeaves();
+  if (ls.length !== 1) return setStatus('check exactly one leaf to split by the selection', true);
+  runOp({ op: 'split', label: ls[0] });
+});
+$('delete').addEventListener('click', async () => {
+  for (const l of checkedLeaves()) await runOp({ op: 'delete', label: l });
+});
+$('undo').addEventListener('click', async () => { applyState(await api('undo', {})); status(); });
+$('redo').addEventListener('click', async () => { applyState(await api('redo', {})); status(); });
+async function save() {
+  try {
+    const res = await api('save', {});
+    applyState(res.state);
+    $('outputs').textContent = `saved ${res.edits} (${res.operations} edits) and ${res.labels} (${res.leaves} leaves)`;
+    status('saved');
+  } catch (e) { setStatus(String(e.message || e), true); }
+}
+$('save').addEventListener('click', save);
+$('rgb').addEventListener('change', recolor);
+for (const r of document.querySelectorAll('input[name=tool]')) r.addEventListener('change', () => setTool(r.value));
+$('radius').addEventListener('input', () => { $('radius-value').textContent = (+$('radius').value).toFixed(3); });
+window.addEventListener('keydown', (e) => {
+  if (e.target.tagName === 'INPUT' && e.target.type === 'text') return;
+  const k = e.key.toLowerCase();
+  if ((e.ctrlKey || e.metaKey) && k === 'z') { e.preventDefault(); $(e.shiftKey ? 'redo' : 'undo').click(); }
+  else if ((e.ctrlKey || e.metaKey) && k === 'y') { e.preventDefault(); $('redo').click(); }
+  else if ((e.ctrlKey || e.metaKey) && k === 's') { e.preventDefault(); save(); }
+  else if (k === 'enter') assign();
+  else if (k === 'escape') runOp({ op: 'clear' });
+  else if (k === 'b') { document.querySelector('input[value=brush]').click(); }
+  else if (k === 'd') { document.querySelector('input[value=drag]').click(); }
+  else if (k === 'v') { document.querySelector('input[value=orbit]').click(); }
+});
+window.addEventListener('beforeunload', (e) => { if (S.state && S.state.dirty) e.preventDefault(); });
+
+// ---- start ------------------------------------------------------------------------------
+async function main() {
+  const meta = await api('meta');
+  S.meta = meta;
+  S.n = meta.n;
+  $('input-name').textContent = meta.input;
+  $('radius').value = meta.brush_radius;
+  $('radius-value').textContent = (+meta.brush_radius).toFixed(3);
+  $('outputs').textContent = `Save writes ${meta.edits_out} and ${meta.labels_out}`;
+  const buf = await api('points');
+  S.positions = new Float32Array(buf, 0, 3 * S.n);
+  S.rgb = new Uint8Array(buf, 12 * S.n, 3 * S.n);
+  geometry.setAttribute('position', new THREE.BufferAttribute(S.positions, 3));
+  geometry.setAttribute('color', new THREE.BufferAttribute(new Float32Array(3 * S.n), 3));
+  geometry.computeBoundingSphere();
+  material.size = Math.min(0.02, Math.max(0.002, 2.2 / Math.sqrt(S.n)));
+  // camera: look at the plant from the side (perpendicular to up), a little from above
+  const up = new THREE.Vector3(...meta.up).normalize();
+  const side = Math.abs(up.z) < 0.9 ? new THREE.Vector3(0, 0, 1) : new THREE.Vector3(0, 1, 0);
+  const dir = side.sub(up.clone().multiplyScalar(side.dot(up))).normalize();
+  const sphere = geometry.boundingSphere;
+  camera.up.copy(up);
+  controls.target.copy(sphere.center);
+  camera.position.copy(sphere.center).addScaledVector(dir, sphere.radius * 2.6).addScaledVector(up, sphere.radius * 1.4);
+  camera.lookAt(sphere.center);
+  controls.update();
+  setTool(document.querySelector('input[name=tool]:checked').value);
+  applyState(await api('state'));
+  resize();
+  S.ready = true;
+  status();
+}
+
+// A small hook for tests and scripting: where a Gaussian is on screen, and the state.
+window.leaffit = {
+  get ready() { return S.ready; },
+  get busy() { return S.busy || !!S.gesture; },
+  screenOf(i) {
+    const v = new THREE.Vector3(S.positions[3 * i], S.positions[3 * i + 1], S.positions[3 * i + 2]).project(camera);
+    const r = renderer.domElement.getBoundingClientRect();
+    return { x: r.left + (v.x + 1) / 2 * r.width, y: r.top + (1 - v.y) / 2 * r.height, visible: Math.abs(v.z) <= 1 };
+  },
+  labels() { return Array.from(S.labels); },
+  state() { return S.state; },
+};
+
+main().catch((e) => setStatus('failed to load: ' + (e.message || e), true));
