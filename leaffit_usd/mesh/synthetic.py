@@ -1,0 +1,168 @@
+"""Small synthetic inputs for the mesh stage's tests and benchmark (no samples needed).
+
+* :func:`synthetic_leaf` — a curved, pointed-elliptic leaf of flat Gaussians with a green top
+  layer and a pale bottom layer (a two-sided capture), placed in the working frame by a
+  similarity, with the ``LeafFits`` the fit stage would hand over for it;
+* :func:`synthetic_tree` — a ``Segmentation`` whose rootward tree is a main stem with branches,
+  each ending in a few leaf nodes.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from leaffit_usd.fit.result import LeafFits
+from leaffit_usd.segment.result import Segmentation
+from leaffit_usd.splats.cloud import GaussianCloud, matrix_to_quat
+
+TOP_RGB = (0.15, 0.55, 0.12)
+BOTTOM_RGB = (0.65, 0.80, 0.45)
+
+
+def leaf_surface(u: np.ndarray, v: np.ndarray, length=1.0, width=0.4, cup=0.25, arch=0.15):
+    """Leaf mid-surface, template local frame. u in [0, 1] along the blade, v in [-1, 1] across.
+
+    Half-width ``width/2 * sin(pi u)^0.7`` (pointed base and apex), cupped across (z ~ v^2) and
+    arched along (z ~ u(1-u)). Returns (P, 3) points and (P, 3) unit normals (+Z side).
+    """
+    hw = 0.5 * width * np.sin(np.pi * u) ** 0.7
+    x = length * u
+    y = hw * v
+    z = cup * length * (y / (0.5 * width)) ** 2 * 0.25 + arch * length * u * (1 - u)
+    # normal from the partial derivatives (numerical)
+    e = 1e-5
+    def pos(uu, vv):
+        hw_ = 0.5 * width * np.sin(np.pi * uu) ** 0.7
+        yy = hw_ * vv
+        return np.stack([length * uu, yy, cup * length * (yy / (0.5 * width)) ** 2 * 0.25
+                         + arch * length * uu * (1 - uu)], -1)
+    du = (pos(np.clip(u + e, 0, 1), v) - pos(np.clip(u - e, 0, 1), v))
+    dv = (pos(u, v + e) - pos(u, v - e))
+    n = np.cross(du, dv)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    n[n[:, 2] < 0] *= -1
+    return np.stack([x, y, z], -1), n
+
+
+def _similarity(rng, scale):
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_rotvec(rng.normal(size=3) * 0.8).as_matrix()
+    m = np.eye(4)
+    m[:3, :3] = R * scale
+    m[:3, 3] = rng.normal(size=3) * 0.2
+    return m
+
+
+def synthetic_leaf(n: int = 6000, seed: int = 0, two_sided: bool = True, thickness: float = 0.004,
+                   noise: float = 0.002, scale: float = 0.2, length=1.0, width=0.4, cup=0.25,
+                   arch=0.15, holes: bool = False) -> tuple[GaussianCloud, LeafFits]:
+    """A leaf of ``n`` flat Gaussians in the working frame and its ``LeafFits`` (one leaf).
+
+    The template local frame is the leaf's own (petiole base at the origin, +X to the apex, +Z up
+    the leaf); ``leaf_to_working`` is a random similarity of scale ``scale``. ``two_sided``: half
+    the Gaussians lie ``thickness/2`` above the mid-surface (green, the front) and half below
+    (pale, the back); otherwise one green layer. ``holes``: leave a round gap in the blade (a
+    missing patch of the capture). template_points = mid-surface positions + ``noise`` (as the
+    fit's denoising would leave them).
+    """
+    rng = np.random.default_rng(seed)
+    m = int(n * 1.4)
+    u = rng.uniform(0, 1, m)
+    v = rng.uniform(-1, 1, m)
+    if holes:
+        ok = (u - 0.55) ** 2 + (v * 0.2) ** 2 > 0.07 ** 2
+        u, v = u[ok], v[ok]
+    u, v = u[:n], v[:n]
+    p, nrm = leaf_surface(u, v, length, width, cup, arch)
+    top = (np.arange(len(p)) % 2 == 0) if two_sided else np.ones(len(p), bool)
+    side = np.where(top, 0.5, -0.5) * thickness
+    centres = p + side[:, None] * nrm
+    # flat Gaussians: in-plane sigma ~ the sample spacing, normal sigma tiny
+    area = length * width * 0.7
+    s = 0.8 * np.sqrt(area / max(len(p), 1)) * (1 + 0.2 * rng.random(len(p)))
+    scales = np.stack([s, s * (0.7 + 0.3 * rng.random(len(p))), np.full(len(p), 1e-4 * length)], 1)
+    t1 = np.cross(nrm, [0.0, 1.0, 0.0])
+    t1 /= np.maximum(np.linalg.norm(t1, axis=1, keepdims=True), 1e-12)
+    t2 = np.cross(nrm, t1)
+    Rl = np.stack([t1, t2, nrm], -1)  # columns: local axes
+    rgb = np.where(top[:, None], np.asarray(TOP_RGB), np.asarray(BOTTOM_RGB))
+    # a vein along the midrib on both sides, darker/lighter, so orientation is visible
+    vein = np.abs(v * np.sin(np.pi * u) ** 0.7) < 0.04
+    rgb = np.where(vein[:, None], rgb * np.where(top, 0.6, 1.15)[:, None], rgb)
+    rgb = np.clip(rgb + rng.normal(0, 0.02, rgb.shape), 0, 1)
+    M = _similarity(rng, scale)
+    sc = scale
+    R = M[:3, :3] / sc
+    means_w = centres @ M[:3, :3].T + M[:3, 3]
+    rot_w = np.einsum("ij,njk->nik", R, Rl)
+    cloud = GaussianCloud.from_activated(means_w, scales * sc, matrix_to_quat(rot_w),
+                                         np.full(len(p), 0.9), colors=rgb)
+    tpl = p + rng.normal(0, noise, p.shape)
+    fits = LeafFits(
+        template_label=1,
+        template_points=tpl.astype(np.float32),
+        template_gaussians=np.arange(len(p), dtype=np.int64),
+        template_controls=tpl[np.linspace(0, len(tpl) - 1, 32).astype(int)].astype(np.float32),
+        leaf_labels=np.array([1], np.int32),
+        targets=tpl[np.linspace(0, len(tpl) - 1, 32).astype(int)][None].astype(np.float32),
+        leaf_to_working=M[None],
+        errors=np.zeros(1, np.float32),
+        fallback=np.zeros(1, bool),
+    )
+    return cloud, fits
+
+
+def synthetic_tree(n_branches: int = 3, leaves_per_branch: int = 2, seed: int = 0,
+                   stem_radius: float = 0.01) -> tuple[Segmentation, np.ndarray]:
+    """A Segmentation whose tree is a vertical main stem with ``n_branches`` side branches, each
+    forking into ``leaves_per_branch`` petioles ending in 3 leaf nodes; plus the (N, 3) working
+    points (tree nodes first, then stem-surface Gaussians of radius ``stem_radius`` around the
+    main stem's lower part, so radius estimates have something to measure).
+    """
+    rng = np.random.default_rng(seed)
+    pts, parent, leaf = [np.zeros(3)], [-1], [0]
+
+    def add(p, par, lab):
+        pts.append(np.asarray(p, float))
+        parent.append(par)
+        leaf.append(lab)
+        return len(pts) - 1
+
+    prev = 0
+    label = 0
+    leaf_base = []
+    for b in range(n_branches):
+        for k in range(4):
+            prev = add([0, 0, (b * 4 + k + 1) * 0.05], prev, 0)
+        ang = 2 * np.pi * b / n_branches
+        d = np.array([np.cos(ang), np.sin(ang), 0.5])
+        q = prev
+        for k in range(3):
+            q = add(pts[prev] + d * 0.04 * (k + 1), q, 0)
+        fork = q
+        for j in range(leaves_per_branch):
+            a2 = ang + (j - (leaves_per_branch - 1) / 2) * 0.8
+            d2 = np.array([np.cos(a2), np.sin(a2), 0.3])
+            r = add(pts[fork] + d2 * 0.03, fork, 0)
+            label += 1
+            s = r
+            first = None
+            for k in range(3):
+                s = add(pts[r] + d2 * 0.03 * (k + 1), s, label)
+                first = s if first is None else first
+            leaf_base.append(first)
+    tp = np.asarray(pts)
+    S = len(tp)
+    # stem surface Gaussians around the lower main stem
+    m = 400
+    z = rng.uniform(0, 0.1, m)
+    th = rng.uniform(0, 2 * np.pi, m)
+    ring = np.stack([stem_radius * np.cos(th), stem_radius * np.sin(th), z], 1)
+    allp = np.concatenate([tp, ring])
+    labels = np.zeros(len(allp), np.int32)
+    labels[:S] = np.asarray(leaf, np.int32)
+    seg = Segmentation(labels=labels, root_index=0, leaf_base=np.asarray(leaf_base, np.int64),
+                       tree_nodes=np.arange(S, dtype=np.int64),
+                       tree_parent=np.asarray(parent, np.int64),
+                       tree_leaf=np.asarray(leaf, np.int32))
+    return seg, allp

@@ -1,0 +1,521 @@
+"""Template leaf mesh: surface, two-sided UVs and texture bake (paper, "Template Leaf Mesh Extraction").
+
+Pipeline (template local frame: petiole base at the origin, +X base -> apex, +Z leaf normal):
+
+1. **Samples** — farthest point sampling of the template's denoised Gaussian centres
+   (``fits.template_points``) down to ``vertex_budget`` (2,048, the paper's). Hole filling adds
+   no vertices, so the sheet has at most that many vertices (fewer when BPA leaves samples out).
+   The budget counts the *sheet's* vertices (geometric positions); the two-sided mesh duplicates
+   each per side, so ``TemplateMesh.points`` has twice as many rows.
+2. **Surface** — ball pivoting + repair (the paper's), or the planar fallback, see
+   :mod:`leaffit_usd.mesh.surface`. ``method="auto"`` runs BPA and falls back to planar when the
+   repaired BPA sheet fails the disk/thin checks, with a warning.
+3. **UVs** — planar, from the template frame's xy (the PCA-aligned view the fit uses). Chosen
+   over xatlas because the bake is an orthographic render along +-Z of that very frame: with
+   planar UVs a texel *is* a render pixel (no resampling through the surface, no seams, one
+   island per side, front and back registered), and the texture reads as a picture of the leaf,
+   which the retexture tool and artists edit directly. The cost: stretch where the leaf's
+   surface is steep in this view (strongly curled leaves); the report gives ``uv_stretch_max``
+   (largest 3D/2D edge length ratio). Texels are square; the leaf's larger xy extent (plus a
+   margin) spans the image.
+4. **Two sides** — every sheet vertex and triangle is duplicated: front copy (CCW seen from +Z,
+   normals +Z-ish, ``uv = (u, v)`` into ``front_texture``) then back copy (reversed winding,
+   negated normals, ``uv = (1 - u, v)`` into ``back_texture``: the back texture is the leaf as
+   seen from behind, not mirrored).
+5. **Bake** — the template's Gaussians (``cloud_working.subset(fits.template_gaussians)``,
+   mapped into the template frame by ``inverse(fits.leaf_to_working[template row])``) are
+   rendered with THE splat renderer (:mod:`leaffit_usd.splats.render`) from +Z (front) and from
+   -Z (back). Colour is un-premultiplied; alpha is the splat coverage ramped around
+   ``alpha_threshold`` (about one texel of anti-aliasing) with interior pin-holes closed, so the
+   cut-out follows the leaf's own silhouette; colours are then dilated outwards over the whole
+   image (nearest covered texel) so mip-maps never bleed background into the leaf.
+   DC colours only: the cloud's SH rest coefficients are not rotated into the working frame.
+
+A side whose splats cover less than ``min_coverage`` of the sheet's silhouette (a leaf seen from
+one side only, a sparse capture) gets the other side's texture (mirrored to stay registered), or
+when both are poor, its colours inpainted over the sheet and alpha = the sheet — with a warning.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from leaffit_usd.errors import ParameterError
+from leaffit_usd.geometry.sampling import farthest_point_sampling
+from leaffit_usd.mesh import surface as surf
+from leaffit_usd.mesh.result import TemplateMesh
+
+log = logging.getLogger("leaffit_usd")
+
+METHODS = ("auto", "bpa", "planar")
+FORMATS = ("png", "exr")
+MAX_OFF_SHEET_FRACTION = 0.02  # samples farther than one spacing from the sheet (rim left out)
+
+
+@dataclass
+class MeshParams:
+    """Template mesh parameters.
+
+    vertex_budget : maximum number of sheet vertices (FPS samples), paper: 2,048
+    texture_size : width = height of each side's texture in pixels
+    texture_format : "png" (8-bit sRGB RGBA) or "exr" (half float, linear RGB, straight alpha)
+    method : "auto" (BPA, planar fallback), "bpa" (BPA only; still falls back when it produces
+        nothing usable) or "planar"
+    bpa_radii : ball radii, multiples of the samples' median nearest-neighbour spacing
+    alpha : planar method's alpha-shape circumradius, multiple of the same spacing
+    texture_margin : empty border around the leaf in the texture, fraction of its larger extent
+    alpha_threshold : splat coverage at which the cut-out edge lies
+    min_coverage : smallest fraction of the sheet's silhouette a side's splats must cover
+    """
+
+    vertex_budget: int = 2048
+    texture_size: int = 1024
+    texture_format: str = "png"
+    method: str = "auto"
+    bpa_radii: tuple = (2.0, 3.0, 4.0)
+    alpha: float = 2.5
+    texture_margin: float = 0.03
+    alpha_threshold: float = 0.5
+    min_coverage: float = 0.6
+
+    def validate(self) -> None:
+        if not isinstance(self.vertex_budget, (int, np.integer)) or self.vertex_budget < 3:
+            raise ParameterError("vertex_budget", "an integer >= 3", self.vertex_budget)
+        if not isinstance(self.texture_size, (int, np.integer)) or not 8 <= self.texture_size <= 16384:
+            raise ParameterError("texture_size", "an integer in [8, 16384]", self.texture_size)
+        if self.texture_format not in FORMATS:
+            raise ParameterError("texture_format", " or ".join(FORMATS), self.texture_format)
+        if self.method not in METHODS:
+            raise ParameterError("method", ", ".join(METHODS), self.method)
+        radii = tuple(self.bpa_radii)
+        if not radii or not all(np.isfinite(r) and r > 0 for r in radii):
+            raise ParameterError("bpa_radii", "positive multiples of the sample spacing", self.bpa_radii)
+        for name, lo, hi in (("alpha", 0.5, 100.0), ("texture_margin", 0.0, 0.45),
+                             ("alpha_threshold", 0.01, 0.99), ("min_coverage", 0.0, 1.0)):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and lo <= v <= hi):
+                raise ParameterError(name, f"a number in [{lo}, {hi}]", v)
+
+
+# ---- surface ----------------------------------------------------------------------------------
+def _off_sheet_fraction(samples: np.ndarray, sheet: surf.Sheet, spacing: float) -> float:
+    if len(sheet.faces) == 0:
+        return 1.0
+    d = point_sheet_distance(samples, sheet.points, sheet.faces)
+    return float(np.mean(d > spacing))
+
+
+def point_sheet_distance(points: np.ndarray, verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(M,) float64 distance of each point to the triangle mesh (open3d raycasting scene)."""
+    import open3d as o3d
+
+    if len(points) == 0:
+        return np.zeros(0)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(verts, np.float32)),
+                        o3d.core.Tensor(np.ascontiguousarray(faces, np.uint32)))
+    q = o3d.core.Tensor(np.ascontiguousarray(points, np.float32))
+    return scene.compute_distance(q).numpy().astype(np.float64)
+
+
+def build_sheet(samples: np.ndarray, params: MeshParams) -> tuple[surf.Sheet, dict]:
+    """The single-sheet surface of ``samples`` (S, 3) float, template local frame.
+
+    Returns the sheet and its check figures; falls back (BPA -> planar -> a quad) with a
+    warning, never raises for degenerate input.
+    """
+    tried = []
+    spacing = surf.sample_spacing(samples) if len(samples) >= 2 else 1.0
+    order = {"auto": ("bpa", "planar"), "bpa": ("bpa", "planar"), "planar": ("planar",)}[params.method]
+    for method in order:
+        if len(samples) < 4:
+            tried.append(f"{method}: only {len(samples)} points")
+            continue
+        try:
+            if method == "bpa":
+                sheet = surf.bpa_sheet(samples, params.bpa_radii)
+            else:
+                sheet = surf.planar_sheet(samples, params.alpha)
+        except Exception as exc:  # a library failing on odd input must not stop the pipeline
+            tried.append(f"{method}: {type(exc).__name__}: {exc}")
+            continue
+        checks = surf.sheet_checks(sheet.points, sheet.faces)
+        off = _off_sheet_fraction(samples, sheet, spacing)
+        checks["off_sheet_fraction"] = off
+        problems = []
+        if not checks["is_disk"]:
+            problems.append(f"not a single disk ({checks['components']} components, "
+                            f"{checks['boundary_loops']} boundary loops, "
+                            f"{checks['nonmanifold_edges']} non-manifold edges, "
+                            f"{checks['nonmanifold_vertices']} non-manifold vertices, "
+                            f"fold ratio {checks['fold_ratio']:.3f})")
+        if off > MAX_OFF_SHEET_FRACTION:
+            problems.append(f"{100 * off:.1f}% of the samples lie off the sheet")
+        if not problems:
+            if tried:
+                log.warning("mesh: template surface fell back to %s (%s)", method, "; ".join(tried))
+            checks["fallback_reasons"] = tried
+            return sheet, checks
+        tried.append(f"{method}: " + ", ".join(problems))
+        last = (sheet, checks)
+        if method == order[-1] and len(sheet.faces):
+            log.warning("mesh: template surface is not a clean disk (%s); keeping the %s result",
+                        "; ".join(tried), method)
+            checks["fallback_reasons"] = tried
+            return last
+    log.warning("mesh: no surface could be built from %d template points (%s); using a quad",
+                len(samples), "; ".join(tried))
+    sheet = surf.fallback_quad(samples)
+    checks = surf.sheet_checks(sheet.points, sheet.faces)
+    checks["off_sheet_fraction"] = 0.0
+    checks["fallback_reasons"] = tried
+    return sheet, checks
+
+
+def vertex_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(S, 3) float64 area-weighted unit vertex normals, oriented to +Z where undefined."""
+    fn = np.cross(points[faces[:, 1]] - points[faces[:, 0]], points[faces[:, 2]] - points[faces[:, 0]])
+    vn = np.zeros_like(points, dtype=np.float64)
+    for k in range(3):
+        np.add.at(vn, faces[:, k], fn)
+    ln = np.linalg.norm(vn, axis=1, keepdims=True)
+    vn = np.where(ln > 1e-20, vn / np.maximum(ln, 1e-30), [0.0, 0.0, 1.0])
+    return vn
+
+
+# ---- UVs and rasterising ---------------------------------------------------------------------------
+def uv_bounds(xy: np.ndarray, size: int, margin: float) -> tuple[float, float, float, float]:
+    """Square-texel bounds (xmin, xmax, ymin, ymax) of a ``size`` x ``size`` texture around ``xy``."""
+    from leaffit_usd.splats.render import fit_bounds
+
+    return fit_bounds(xy, size, size, margin)
+
+
+def planar_uvs(xy: np.ndarray, bounds) -> np.ndarray:
+    """(S, 2) front UVs of template-frame ``xy`` (S, 2) for the texture covering ``bounds``."""
+    xmin, xmax, ymin, ymax = bounds
+    return np.stack([(xy[:, 0] - xmin) / (xmax - xmin), (xy[:, 1] - ymin) / (ymax - ymin)], 1)
+
+
+def rasterize_polygon(poly_xy: np.ndarray, width: int, height: int, bounds) -> np.ndarray:
+    """(H, W) bool: pixel centres inside the closed polygon (k, 2) (even-odd rule), image layout
+    of the renderer (row 0 = ymax)."""
+    xmin, xmax, ymin, ymax = bounds
+    sx, sy = (xmax - xmin) / width, (ymax - ymin) / height
+    yc = ymax - (np.arange(height) + 0.5) * sy                        # (H,)
+    p0, p1 = poly_xy, np.roll(poly_xy, -1, 0)
+    y0, y1 = p0[:, 1][None], p1[:, 1][None]
+    cross = ((y0 <= yc[:, None]) & (yc[:, None] < y1)) | ((y1 <= yc[:, None]) & (yc[:, None] < y0))
+    t = (yc[:, None] - y0) / np.where(y1 != y0, y1 - y0, 1.0)
+    xc = p0[:, 0][None] + t * (p1[:, 0] - p0[:, 0])[None]
+    col = np.ceil((xc - xmin) / sx - 0.5).astype(np.int64)            # first pixel right of x
+    col = np.clip(col, 0, width)
+    r, e = np.nonzero(cross)
+    toggle = np.zeros((height, width + 1), np.int64)
+    np.add.at(toggle, (r, col[r, e]), 1)
+    return (np.cumsum(toggle, axis=1)[:, :width] % 2).astype(bool)
+
+
+# ---- bake -----------------------------------------------------------------------------------------
+def template_gaussians_local(cloud_working, fits):
+    """(means (M, 3), cov (M, 3, 3), colors (M, 3), opacities (M,)) of the template's Gaussians in
+    the template local frame (float64)."""
+    row = _template_row(fits)
+    T = np.linalg.inv(np.asarray(fits.leaf_to_working[row], np.float64))
+    idx = np.asarray(fits.template_gaussians, np.int64)
+    idx = idx[(idx >= 0) & (idx < len(cloud_working))]
+    g = cloud_working.subset(idx)
+    A = T[:3, :3]
+    means = g.means.astype(np.float64) @ A.T + T[:3, 3]
+    cov = np.einsum("ij,njk,lk->nil", A, g.covariances().astype(np.float64), A)
+    return means, cov, g.colors.astype(np.float64), g.opacities.astype(np.float64)
+
+
+def _template_row(fits) -> int:
+    rows = np.flatnonzero(np.asarray(fits.leaf_labels) == fits.template_label)
+    if len(rows) == 0:
+        raise ParameterError("fits.leaf_labels", f"a row for the template leaf {fits.template_label}",
+                             np.asarray(fits.leaf_labels).tolist())
+    return int(rows[0])
+
+
+def _ramp(alpha: np.ndarray, thr: float) -> np.ndarray:
+    w = min(0.25, thr, 1 - thr)
+    return np.clip((alpha - (thr - w)) / (2 * w), 0.0, 1.0)
+
+
+def _dilate_colors(rgb: np.ndarray, solid: np.ndarray) -> np.ndarray:
+    """Every non-solid texel takes the colour of its nearest solid texel (edge padding to infinity)."""
+    from scipy.ndimage import distance_transform_edt
+
+    if solid.all() or not solid.any():
+        return rgb
+    _, (ri, ci) = distance_transform_edt(~solid, return_indices=True)
+    return rgb[ri, ci]
+
+
+def _side_texture(render, thr: float, sheet_mask: np.ndarray):
+    """RGBA float (H, W, 4) straight alpha, and the splat coverage of the sheet's silhouette."""
+    from scipy.ndimage import binary_fill_holes
+
+    color, alpha = np.asarray(render.color, np.float64), np.asarray(render.alpha, np.float64)
+    straight = color / np.maximum(alpha, 1e-6)[..., None]
+    straight = np.clip(straight, 0.0, 1.0)
+    solid = alpha > thr
+    a = _ramp(alpha, thr)
+    a[binary_fill_holes(solid)] = 1.0  # opaque inside (pin-holes too); the ramp only at the rim
+    cover = float(solid[sheet_mask].mean()) if sheet_mask.any() else 0.0
+    rgb = _dilate_colors(straight, alpha > 0.9 * thr)
+    return np.concatenate([rgb, a[..., None]], -1), cover
+
+
+def _inpainted(tex: np.ndarray, sheet_mask: np.ndarray, thr: float) -> np.ndarray:
+    """Colour of the covered texels spread over the whole image; alpha = the sheet silhouette."""
+    solid = tex[..., 3] > thr
+    rgb = _dilate_colors(tex[..., :3], solid) if solid.any() else np.full_like(tex[..., :3], 0.3)
+    return np.concatenate([rgb, sheet_mask[..., None].astype(np.float64)], -1)
+
+
+def bake_textures(cloud_working, fits, outline_xy: np.ndarray, bounds, size: int,
+                  thr: float = 0.5, min_coverage: float = 0.6):
+    """Front and back RGBA float textures (H, W, 4) in [0, 1], straight alpha, row 0 = top.
+
+    outline_xy : (k, 2) the sheet's outer boundary, template frame (coverage and fallbacks)
+    bounds : the front texture's (xmin, xmax, ymin, ymax), template frame; the back texture is
+        its mirror image (column c of the back = column W-1-c of the front)
+    Returns (front, back, info) with coverage figures and the fallback used, if any.
+    """
+    from leaffit_usd.splats.render import render_orthographic_np
+
+    means, cov, colors, opac = template_gaussians_local(cloud_working, fits)
+    mask = rasterize_polygon(outline_xy, size, size, bounds)
+    info = {}
+    if len(means) == 0:
+        log.warning("mesh: the template has no Gaussians to bake; textures are flat grey")
+        flat = np.concatenate([np.full((size, size, 3), 0.3), mask[..., None]], -1)
+        return flat, flat[:, ::-1].copy(), dict(coverage_front=0.0, coverage_back=0.0,
+                                                 texture_fallback="flat")
+    t0 = time.perf_counter()
+    fr = render_orthographic_np(means, cov, colors, opac, size, size, bounds)
+    bk = render_orthographic_np(means, cov, colors, opac, size, size, bounds, from_below=True)
+    info["bake_seconds"] = time.perf_counter() - t0
+    front, cf = _side_texture(fr, thr, mask)
+    back_reg, cb = _side_texture(bk, thr, mask)  # registered with the front (not mirrored yet)
+    info["coverage_front"], info["coverage_back"] = cf, cb
+    fallback = None
+    if cf < min_coverage and cb < min_coverage:
+        fallback = "inpainted"
+        log.warning("mesh: the template's splats cover only %.0f%% (front) / %.0f%% (back) of the "
+                    "leaf; textures are inpainted over the mesh silhouette", 100 * cf, 100 * cb)
+        front, back_reg = _inpainted(front, mask, thr), _inpainted(back_reg, mask, thr)
+    elif cb < min_coverage:
+        fallback = "back_from_front"
+        log.warning("mesh: the leaf's back is covered only %.0f%% (seen from one side?); "
+                    "the back texture reuses the front", 100 * cb)
+        back_reg = front.copy()
+    elif cf < min_coverage:
+        fallback = "front_from_back"
+        log.warning("mesh: the leaf's front is covered only %.0f%% (seen from one side?); "
+                    "the front texture reuses the back", 100 * cf)
+        front = back_reg.copy()
+    info["texture_fallback"] = fallback
+    info["alpha_coverage_front"] = float((front[..., 3] > thr).mean())
+    info["alpha_coverage_back"] = float((back_reg[..., 3] > thr).mean())
+    return front, back_reg[:, ::-1].copy(), info
+
+
+def _to_u8(tex: np.ndarray) -> np.ndarray:
+    return np.clip(np.round(tex * 255.0), 0, 255).astype(np.uint8)
+
+
+# ---- main entry --------------------------------------------------------------------------------------
+def build_template_mesh(cloud_working, fits, params: MeshParams | None = None) -> TemplateMesh:
+    """Two-sided, textured template leaf mesh.
+
+    cloud_working : GaussianCloud, working frame (the cloud the fit ran on)
+    fits : LeafFits (template_points, template_gaussians, leaf_to_working of the template row)
+    Returns a :class:`TemplateMesh` in the template local frame (working units).
+    """
+    params = params or MeshParams()
+    params.validate()
+    timings = {}
+    t0 = time.perf_counter()
+    pts = np.asarray(fits.template_points, np.float64).reshape(-1, 3)
+    pts = pts[np.isfinite(pts).all(1)]
+    _template_row(fits)  # fail early on a LeafFits without the template's row
+    idx = farthest_point_sampling(pts, int(params.vertex_budget)) if len(pts) else np.zeros(0, np.int64)
+    samples = pts[idx]
+    timings["fps"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    sheet, checks = build_sheet(samples, params)
+    timings["surface"] = time.perf_counter() - t0
+    P = sheet.points
+    Fs = sheet.faces.astype(np.int64)
+    S = len(P)
+    normals = vertex_normals(P, Fs)
+    loops = surf.boundary_loops(Fs, S)
+    outer = max(loops, key=lambda lp: abs(surf.signed_area_xy(P[lp]))) if loops else np.arange(S)
+
+    # UVs and textures
+    size = int(params.texture_size)
+    t0 = time.perf_counter()
+    bounds = uv_bounds(P[:, :2], size, params.texture_margin)
+    uv_front = planar_uvs(P[:, :2], bounds)
+    uv_back = np.stack([1.0 - uv_front[:, 0], uv_front[:, 1]], 1)
+    front, back, tinfo = bake_textures(cloud_working, fits, P[outer, :2], bounds, size,
+                                       params.alpha_threshold, params.min_coverage)
+    timings["bake"] = time.perf_counter() - t0
+
+    # two sides
+    points = np.concatenate([P, P]).astype(np.float32)
+    faces = np.concatenate([Fs, Fs[:, ::-1] + S]).astype(np.int32)
+    mesh = TemplateMesh(
+        points=points, faces=faces,
+        normals=np.concatenate([normals, -normals]).astype(np.float32),
+        uvs=np.concatenate([uv_front, uv_back]).astype(np.float32),
+        side=np.concatenate([np.zeros(S, np.uint8), np.ones(S, np.uint8)]),
+        front_texture=_to_u8(front), back_texture=_to_u8(back),
+        sheet_points=P.astype(np.float32), sheet_faces=Fs.astype(np.int32),
+    )
+    mesh.report = quality_report(mesh, cloud_working, fits, sheet, checks, tinfo, bounds, params)
+    mesh.report["timings"] = {k: round(v, 4) for k, v in timings.items()}
+    return mesh
+
+
+def quality_report(mesh: TemplateMesh, cloud_working, fits, sheet, checks, tinfo, bounds, params) -> dict:
+    """Plain-JSON quality figures of a template mesh (distances relative to the leaf length)."""
+    P, F = mesh.sheet_points.astype(np.float64), mesh.sheet_faces.astype(np.int64)
+    pts = np.asarray(fits.template_points, np.float64)
+    pts = pts[np.isfinite(pts).all(1)]
+    leaf_len = float(np.ptp(pts[:, 0])) if len(pts) else 1.0
+    leaf_len = leaf_len if leaf_len > 0 else 1.0
+    rep = dict(
+        method=sheet.info.get("method"), vertex_budget=int(params.vertex_budget),
+        sheet_vertices=int(len(P)), sheet_faces=int(len(F)),
+        vertices=int(len(mesh.points)), faces=int(len(mesh.faces)),
+        leaf_length=leaf_len,
+        holes_before=int(sheet.info.get("holes_before", 0)),
+        holes_after=int(max(checks.get("boundary_loops", 1) - 1, 0)),
+        islands_removed=int(sheet.info.get("islands_removed", 0)),
+        slivers_removed=int(sheet.info.get("slivers_removed", 0)),
+        unused_samples=int(sheet.info.get("unused_samples", 0)),
+    )
+    rep.update({k: v for k, v in checks.items()})
+    if len(F):
+        loops = surf.boundary_loops(F, len(P))
+        blen = sum(float(np.linalg.norm(P[lp] - P[np.roll(lp, -1)], axis=1).sum()) for lp in loops)
+        rep["boundary_length"] = blen
+        rep["boundary_length_rel"] = blen / leaf_len
+        d = point_sheet_distance(pts, P, F) / leaf_len
+        rep.update(points_dist_mean_rel=float(d.mean()) if len(d) else 0.0,
+                   points_dist_max_rel=float(d.max()) if len(d) else 0.0)
+        try:
+            means, _, _, _ = template_gaussians_local(cloud_working, fits)
+            g = point_sheet_distance(means, P, F) / leaf_len
+            rep.update(gauss_dist_mean_rel=float(g.mean()) if len(g) else 0.0,
+                       gauss_dist_p95_rel=float(np.percentile(g, 95)) if len(g) else 0.0,
+                       gauss_dist_max_rel=float(g.max()) if len(g) else 0.0)
+        except Exception as exc:  # report only
+            log.debug("mesh: Gaussian distance report skipped: %s", exc)
+        # planar-UV stretch: 3D edge length / (xy edge length)
+        e = F[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+        l3 = np.linalg.norm(P[e[:, 0]] - P[e[:, 1]], axis=1)
+        l2 = np.linalg.norm(P[e[:, 0], :2] - P[e[:, 1], :2], axis=1)
+        rep["uv_stretch_max"] = float((l3 / np.maximum(l2, 1e-12)).max())
+        ang = surf._tri_min_angle(P, F)
+        rep["min_angle_deg_p5"] = float(np.percentile(ang, 5))
+    rep.update({k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in tinfo.items()})
+    rep["texture_size"] = int(params.texture_size)
+    rep["uv_bounds"] = [float(b) for b in bounds]
+    return rep
+
+
+# ---- texture files ------------------------------------------------------------------------------------
+class TexturePaths(NamedTuple):
+    """Paths of the two texture files written by :func:`write_textures`."""
+
+    front: Path
+    back: Path
+
+
+def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def write_image(path, rgba_u8: np.ndarray, fmt: str | None = None) -> Path:
+    """Write an (H, W, 4) uint8 RGBA image (row 0 = top) with OpenImageIO, atomically.
+
+    png: 8-bit sRGB; exr: half-float, RGB linearised from sRGB, alpha as is (straight).
+    """
+    import OpenImageIO as oiio
+
+    from leaffit_usd.io_util import atomic_path
+
+    path = Path(path)
+    fmt = (fmt or path.suffix.lstrip(".")).lower()
+    if fmt not in FORMATS:
+        raise ParameterError("texture_format", " or ".join(FORMATS), fmt)
+    img = np.ascontiguousarray(rgba_u8, np.uint8)
+    H, W = img.shape[:2]
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None:
+            raise RuntimeError(f"OpenImageIO cannot write {fmt}: {oiio.geterror()}")
+        if fmt == "png":
+            spec = oiio.ImageSpec(W, H, 4, "uint8")
+            spec.attribute("oiio:ColorSpace", "sRGB")
+            data = img
+        else:
+            spec = oiio.ImageSpec(W, H, 4, "half")
+            spec.attribute("oiio:ColorSpace", "lin_rec709")
+            spec.attribute("compression", "zip")
+            f = img.astype(np.float32) / 255.0
+            f[..., :3] = _srgb_to_linear(f[..., :3])
+            data = f.astype(np.float16)
+        spec.channelnames = ("R", "G", "B", "A")
+        spec.alpha_channel = 3
+        if not out.open(str(tmp), spec):
+            raise RuntimeError(f"OpenImageIO cannot open {path}: {out.geterror()}")
+        ok = out.write_image(data)
+        out.close()
+        if not ok:
+            raise RuntimeError(f"OpenImageIO failed writing {path}: {out.geterror()}")
+    return path
+
+
+def read_image(path) -> np.ndarray:
+    """(H, W, 4) uint8 RGBA (sRGB) of a texture written by :func:`write_image` (png or exr)."""
+    import OpenImageIO as oiio
+
+    from leaffit_usd.errors import InputFileError
+
+    buf = oiio.ImageBuf(str(path))
+    if buf.has_error:
+        raise InputFileError(str(path), f"cannot be read as an image ({buf.geterror()})")
+    px = np.asarray(buf.get_pixels(oiio.FLOAT), np.float64)
+    if px.ndim == 2:
+        px = px[..., None]
+    if px.shape[2] == 1:
+        px = np.repeat(px, 3, 2)
+    if px.shape[2] == 3:
+        px = np.concatenate([px, np.ones_like(px[..., :1])], 2)
+    px = px[..., :4]
+    if Path(path).suffix.lower() == ".exr":
+        c = np.clip(px[..., :3], 0, 1)
+        px[..., :3] = np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1 / 2.4) - 0.055)
+    return np.clip(np.round(px * 255.0), 0, 255).astype(np.uint8)
+
+
+def write_textures(mesh: TemplateMesh, directory, fmt: str = "png", basename: str = "leaf") -> TexturePaths:
+    """Write ``<basename>_front.<fmt>`` and ``<basename>_back.<fmt>`` into ``directory``, atomically."""
+    if fmt not in FORMATS:
+        raise ParameterError("fmt", " or ".join(FORMATS), fmt)
+    d = Path(directory)
+    front = write_image(d / f"{basename}_front.{fmt}", mesh.front_texture, fmt)
+    back = write_image(d / f"{basename}_back.{fmt}", mesh.back_texture, fmt)
+    return TexturePaths(front, back)
