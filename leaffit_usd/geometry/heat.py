@@ -156,6 +156,9 @@ class GeodesicSolver:
                                       ((p0 - p2) ** 2).sum(1)], axis=0))
             keep = area > SLIVER * longest**2
             keep &= longest <= LONG_EDGE * spacing[tris].max(1)
+            tris = tris[keep]
+            area, cr = area[keep], cr[keep]
+            keep = np.ones(len(tris), bool)
             if self._nrm is not None:
                 fn = cr / np.maximum(2 * area, 1e-300)[:, None]
                 for c in range(3):
@@ -169,7 +172,10 @@ class GeodesicSolver:
                             ev = x[tris[:, o]] - x[tris[:, c]]
                             ev /= np.maximum(np.linalg.norm(ev, axis=1), 1e-300)[:, None]
                             keep &= ~known | (np.abs((ev * np.nan_to_num(nv)).sum(1)) <= EDGE_SIN)
+            dropped_tris = tris[~keep]
             tris = tris[keep]
+        else:
+            dropped_tris = tris
         # 1-D elements where triangles do not cover: kNN edges at poorly covered points
         cover = np.bincount(tris.ravel(), minlength=m) if len(tris) else np.zeros(m, np.int64)
         if kk >= 1:
@@ -193,9 +199,12 @@ class GeodesicSolver:
                     nv = self._nrm[e[:, c]]
                     known = np.isfinite(nv).all(1)
                     ok &= ~known | (np.abs((u * np.nan_to_num(nv)).sum(1)) <= EDGE_SIN)
-            edges = e[ok]
+            good = (ln > 0) & (ln <= LONG_EDGE * spacing[e].max(1))
+            edges, dropped_edges = e[ok], e[good & ~ok]
         else:
-            edges = np.zeros((0, 2), np.int64)
+            edges = dropped_edges = np.zeros((0, 2), np.int64)
+        if self._nrm is not None:
+            tris, edges = _reconnect(m, tris, edges, dropped_tris, dropped_edges)
         self.triangles, self.edges = tris, edges
 
         # gradient operator G (3E x m) and element measures a (E,)
@@ -336,6 +345,48 @@ class GeodesicSolver:
     def distance(self, sources) -> np.ndarray:
         """(N,) float64 geodesic distance from ``sources`` (an index or a list: nearest source)."""
         return self.distances([sources])[:, 0]
+
+
+def _components(m, tris, edges):
+    pairs = [tris[:, [0, 1]], tris[:, [1, 2]], edges]
+    e = np.concatenate([q for q in pairs if len(q)] or [np.zeros((0, 2), np.int64)])
+    g = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(m, m))
+    return connected_components(g, directed=False)[1]
+
+
+def _reconnect(m, tris, edges, dropped_tris, dropped_edges):
+    """Give back orientation-dropped elements where dropping them cut a piece off.
+
+    The orientation test must only remove short-cuts, never the one junction that holds a leaf to
+    its petiole (a stem meeting a leaf at a right angle fails the tangent-plane test). So every
+    piece that is disconnected from the largest piece of its component in the unfiltered element
+    graph gets back all dropped elements touching it.
+    """
+    if not len(dropped_tris) and not len(dropped_edges):
+        return tris, edges
+    full = _components(m, np.r_[tris, dropped_tris], np.r_[edges, dropped_edges])
+    for _ in range(4):
+        part = _components(m, tris, edges)
+        # the largest filtered piece of each unfiltered component is its main piece
+        key = full * (m + 1) + part
+        uk, cnt = np.unique(key, return_counts=True)
+        main = {}
+        for k_, c_ in zip(uk.tolist(), cnt.tolist()):
+            f_ = k_ // (m + 1)
+            if c_ > main.get(f_, (0, -1))[0]:
+                main[f_] = (c_, k_ % (m + 1))
+        main_part = np.array([main[f][1] for f in full.tolist()])
+        orphan = part != main_part
+        if not orphan.any():
+            break
+        t_back = orphan[dropped_tris].any(1) if len(dropped_tris) else np.zeros(0, bool)
+        e_back = orphan[dropped_edges].any(1) if len(dropped_edges) else np.zeros(0, bool)
+        if not t_back.any() and not e_back.any():
+            break
+        tris = np.r_[tris, dropped_tris[t_back]]
+        edges = np.r_[edges, dropped_edges[e_back]]
+        dropped_tris, dropped_edges = dropped_tris[~t_back], dropped_edges[~e_back]
+    return tris, edges
 
 
 def compute_distance(points: np.ndarray, sources, **kwargs) -> np.ndarray:
