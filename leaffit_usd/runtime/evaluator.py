@@ -163,7 +163,8 @@ class LeafEvaluator:
         lin = np.ascontiguousarray(M[:, :3, :3], np.float64)
         out = np.einsum("lvc,ldc->lvd", local, lin, optimize=True)           # R S x per leaf
         out += M[:, None, :3, 3]
-        return out.astype(out_dtype, copy=False)
+        # one pass for the cast and a C-contiguous layout (einsum may return a strided view)
+        return np.asarray(out, dtype=out_dtype, order="C")
 
 
 def _asset_transforms(asset, frame: str) -> tuple[np.ndarray, np.ndarray]:
@@ -205,10 +206,12 @@ def evaluate(asset, frame: str = "input", dtype=np.float64,
 
     verts = ev.evaluate(asset.targets, M, out_dtype=dtype).reshape(L * V, 3)
 
-    faces = faces.astype(np.int32)
-    mirrored = np.linalg.det(M[:, :3, :3]) < 0
-    per_leaf = np.where(mirrored[:, None, None], faces[None, :, ::-1], faces[None])
-    all_faces = (per_leaf + (np.arange(L, dtype=np.int32) * V)[:, None, None]).reshape(-1, 3)
+    # faces of leaf j = template faces + j V, winding reversed where the placement mirrors
+    all_faces = faces.astype(np.int32)[None] + (np.arange(L, dtype=np.int32) * V)[:, None, None]
+    mirrored = np.flatnonzero(np.linalg.det(M[:, :3, :3]) < 0)
+    if len(mirrored):
+        all_faces[mirrored] = all_faces[mirrored][:, :, ::-1]
+    all_faces = all_faces.reshape(-1, 3)
 
     stem_pts = np.asarray(asset.stem_points, np.float64).reshape(-1, 3)
     stem_faces = np.asarray(asset.stem_faces, np.int32).reshape(-1, 3)
@@ -217,7 +220,7 @@ def evaluate(asset, frame: str = "input", dtype=np.float64,
         stem_faces = stem_faces[:, ::-1]
     return BakedLeaves(
         vertices=verts,
-        faces=np.ascontiguousarray(all_faces),
+        faces=all_faces,
         leaf_vertex_ids=np.repeat(np.arange(L, dtype=np.int32), V),
         leaf_labels=labels.astype(np.int32),
         stem_vertices=stem_out.astype(dtype),
