@@ -102,3 +102,17 @@ def test_comparison_catches_a_wrong_kernel(ctx, asset):
     gpu = GLDeformer(ctx).deform(dataclasses.replace(asset, sigma=asset.sigma * 1.5))
     cpu = evaluate(asset, frame="asset").vertices.reshape(gpu.shape)
     assert relative_error(gpu, cpu) > 100 * TOL_GLSL
+
+
+@pytest.mark.parametrize("K", [8, 64])
+def test_gpu_matches_cpu_other_K(ctx, K):
+    a = synthetic_asset(n_leaves=3, n_vertices=400, K=K, seed=9)
+    gpu = GLDeformer(ctx).deform(a)
+    cpu = evaluate(a, frame="asset").vertices.reshape(gpu.shape)
+    assert relative_error(gpu, cpu) <= TOL_GLSL
+
+
+def test_too_many_control_points_rejected(ctx):
+    a = synthetic_asset(n_leaves=1, n_vertices=300, K=65, seed=9)
+    with pytest.raises(ParameterError, match="K"):
+        GLDeformer(ctx).deform(a)
