@@ -197,6 +197,10 @@ def read_usd_splats(path: str | os.PathLike, prim: str | None = None, drop_bad: 
             continue  # constant or multi-component primvars are not per-Gaussian properties
         dt = pv.GetAttr().GetCustomDataByKey("leaffit:dtype")
         extra[name] = a.astype(np.dtype(dt) if dt else a.dtype)
+    order = p.GetCustomDataByKey("leaffit:extraOrder")  # primvars come back sorted by name
+    if order:
+        rank = {k: i for i, k in enumerate(order)}
+        extra = dict(sorted(extra.items(), key=lambda kv: rank.get(kv[0], len(rank))))
 
     cloud = GaussianCloud(means=np.ascontiguousarray(means), log_scales=log_scales, quats=quats,
                           opacity_logits=logits, sh=sh, extra=extra)
@@ -283,6 +287,7 @@ def _author_splats(cloud, stage_path, prim, up_axis, meters_per_unit) -> None:
         splat.CreateExtentAttr().Set(Vt.Vec3fArray.FromNumpy(
             np.stack([lo - pad, hi + pad]).astype(np.float32)))
     pvapi = UsdGeom.PrimvarsAPI(splat.GetPrim())
+    written = []
     for name, values in cloud.extra.items():
         v = np.asarray(values)
         if v.ndim != 1 or not Sdf.Path.IsValidNamespacedIdentifier(name):
@@ -298,4 +303,7 @@ def _author_splats(cloud, stage_path, prim, up_axis, meters_per_unit) -> None:
         conv = np.dtype({"i1": "i4", "i2": "i4", "u2": "i4"}.get(key, key))  # native byte order
         pv.Set(getattr(Vt, _VT_ARRAY[key]).FromNumpy(np.ascontiguousarray(v, dtype=conv)))
         pv.GetAttr().SetCustomDataByKey("leaffit:dtype", np.dtype(key).str)
+        written.append(name)
+    if written:
+        splat.GetPrim().SetCustomDataByKey("leaffit:extraOrder", Vt.StringArray(written))
     stage.GetRootLayer().Save()

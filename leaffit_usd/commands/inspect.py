@@ -1,0 +1,142 @@
+"""``leaffit-usd inspect FILE``: what is in a 3DGS capture (counts, SH degree, bounds, up, height)."""
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+NAME = "inspect"
+HELP = "summarise a 3DGS capture (.ply or USD ParticleField3DGaussianSplat)"
+DESCRIPTION = """\
+Summarise a 3DGS capture: Gaussian count (and how many invalid ones were dropped), SH degree,
+extra properties, bounds, estimated up axis (with a confidence) and plant height, memory size,
+opacity and scale statistics. Reads INRIA 3DGS PLY (binary or ASCII) and USD files holding a
+UsdVol.ParticleField3DGaussianSplat prim.
+
+Examples:
+  leaffit-usd inspect plant.ply
+  leaffit-usd inspect plant.usda --prim /World/Plant --json
+  leaffit-usd inspect plant.ply --up +y
+"""
+ORDER = 90
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("file", metavar="FILE", help="3DGS capture: .ply, .usd, .usda, .usdc or .usdz")
+    parser.add_argument("--json", action="store_true", help="print a JSON object instead of a table")
+    parser.add_argument("--up", default="auto", metavar="AXIS",
+                        help="up axis of the capture: auto (estimated, default), +x/-y/z..., or X,Y,Z")
+    parser.add_argument("--prim", default=None, metavar="PATH",
+                        help="USD only: path of the splat prim when the stage holds several")
+
+
+def _stats(a: np.ndarray) -> dict:
+    a = np.asarray(a, np.float64)
+    q = np.quantile(a, [0.0, 0.05, 0.5, 0.95, 1.0])
+    return {"min": float(q[0]), "p5": float(q[1]), "median": float(q[2]), "p95": float(q[3]),
+            "max": float(q[4]), "mean": float(a.mean())}
+
+
+def summarize(path: str | os.PathLike, prim: str | None = None, up: str | None = "auto",
+              cloud=None) -> dict:
+    """A JSON-ready summary of the capture at ``path`` (loaded unless ``cloud`` is given).
+
+    Keys: file, format, file_bytes, gaussians, dropped, file_gaussians, sh_degree,
+    extra_properties {name: dtype}, bounds {min, max, size}, up {vector, source, confidence},
+    root {index (file order), position}, height (input units, along up, above the root),
+    memory_bytes, opacity {...}, scale {...} (largest axis, linear, input units),
+    anisotropy {...} (largest / smallest scale).
+    """
+    from leaffit_usd.splats import detect_format, load_cloud
+    from leaffit_usd.splats.frame import estimate_up_with_confidence, make_frame, parse_up
+
+    path = Path(path)
+    kind = detect_format(path)
+    if cloud is None:
+        cloud = load_cloud(path, prim=prim)
+    means = cloud.means
+    lo, hi = means.min(0).astype(np.float64), means.max(0).astype(np.float64)
+    if up is None or str(up).strip().lower() == "auto":
+        est = estimate_up_with_confidence(means)
+        up_vec, source, conf = est.up, "estimated", float(est.confidence)
+    else:
+        up_vec, source, conf = parse_up(up), "given", None
+    if len(cloud) >= 2:
+        choice = make_frame(cloud, up=up_vec, root="auto")
+        root_i, height = choice.root_index, float(choice.frame.height)
+    else:
+        root_i, height = 0, 0.0
+    scales = cloud.scales.astype(np.float64)
+    return {
+        "file": str(path),
+        "format": kind,
+        "file_bytes": path.stat().st_size,
+        "gaussians": len(cloud),
+        "dropped": int(cloud.file_count - len(cloud)),
+        "file_gaussians": int(cloud.file_count),
+        "sh_degree": cloud.sh_degree,
+        "extra_properties": {k: str(v.dtype) for k, v in cloud.extra.items()},
+        "bounds": {"min": lo.tolist(), "max": hi.tolist(), "size": (hi - lo).tolist()},
+        "up": {"vector": [float(x) for x in up_vec], "source": source, "confidence": conf},
+        "root": {"index": int(cloud.file_index[root_i]), "position": means[root_i].astype(float).tolist()},
+        "height": height,
+        "memory_bytes": cloud.nbytes,
+        "opacity": _stats(cloud.opacities),
+        "scale": _stats(scales.max(1)),
+        "anisotropy": _stats(scales.max(1) / np.maximum(scales.min(1), 1e-30)),
+    }
+
+
+def _fmt_bytes(n: int) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return str(n)
+
+
+def _vec(v) -> str:
+    return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
+
+
+def _st(s: dict) -> str:
+    return f"min {s['min']:.3g}  median {s['median']:.3g}  p95 {s['p95']:.3g}  max {s['max']:.3g}"
+
+
+def format_table(s: dict) -> str:
+    """The human-readable form of :func:`summarize`'s dict (one ``key  value`` line each)."""
+    up = s["up"]
+    conf = "" if up["confidence"] is None else f"  (confidence {up['confidence']:.2f}" + (
+        ", low: check it or pass --up)" if up["confidence"] < 0.2 else ")")
+    extras = ", ".join(f"{k}:{t}" for k, t in s["extra_properties"].items()) or "none"
+    rows = [
+        ("file", f"{s['file']}  ({s['format'].upper()}, {_fmt_bytes(s['file_bytes'])})"),
+        ("gaussians", f"{s['gaussians']:,}" + (f"  ({s['dropped']:,} invalid dropped of "
+                                                 f"{s['file_gaussians']:,})" if s["dropped"] else "")),
+        ("SH degree", f"{s['sh_degree']}  ({(s['sh_degree'] + 1) ** 2} coefficients per channel)"),
+        ("extra properties", extras),
+        ("bounds min", _vec(s["bounds"]["min"])),
+        ("bounds max", _vec(s["bounds"]["max"])),
+        ("bounds size", _vec(s["bounds"]["size"])),
+        ("up axis", f"{_vec(up['vector'])}  {up['source']}{conf}"),
+        ("root (auto)", f"Gaussian {s['root']['index']} at {_vec(s['root']['position'])}"),
+        ("height", f"{s['height']:.4g} input units (along up, above the root)"),
+        ("memory", _fmt_bytes(s["memory_bytes"])),
+        ("opacity", _st(s["opacity"])),
+        ("scale (largest axis)", _st(s["scale"])),
+        ("anisotropy", _st(s["anisotropy"])),
+    ]
+    w = max(len(k) for k, _ in rows)
+    return "\n".join(f"{k:<{w}}  {v}" for k, v in rows)
+
+
+def run(args) -> int:
+    summary = summarize(args.file, prim=args.prim, up=args.up)
+    if args.json:
+        sys.stdout.write(json.dumps(summary, indent=2) + "\n")
+    else:
+        sys.stdout.write(format_table(summary) + "\n")
+    return 0

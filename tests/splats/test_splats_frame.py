@@ -1,0 +1,167 @@
+"""Frame helpers: transform_cloud, estimate_up, resolve_root, make_frame."""
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from leaffit_usd.errors import ParameterError
+from leaffit_usd.splats.frame import (estimate_up, estimate_up_with_confidence, make_frame,
+                                      quat_multiply, resolve_root, transform_cloud)
+from tests.splats.plyfiles import small_cloud
+from tests.splats.splat_synth import make_plant
+
+ANGLE_TOL = 15.0   # degrees, median over random plants
+ROOT_TOL = 0.03    # fraction of plant height
+
+
+def _similarity(seed, scale=2.5):
+    m = np.eye(4)
+    m[:3, :3] = scale * Rotation.random(random_state=seed).as_matrix()
+    m[:3, 3] = [0.5, -1.0, 2.0]
+    return m
+
+
+def _angle(a, b):
+    return np.degrees(np.arccos(np.clip(np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b), -1, 1)))
+
+
+# ---- transform_cloud ---------------------------------------------------------------------------
+def test_quat_multiply_matches_scipy():
+    a, b = Rotation.random(5, random_state=1), Rotation.random(5, random_state=2)
+    wxyz = lambda r: np.roll(r.as_quat(), 1, axis=1)  # noqa: E731
+    got = quat_multiply(wxyz(a), wxyz(b))
+    want = wxyz(a * b)
+    assert np.allclose(np.abs(np.sum(got * want, 1)), 1.0)
+
+
+def test_transform_similarity_covariances_and_inverse():
+    c = small_cloud(300, 2)
+    m = _similarity(3)
+    t = transform_cloud(c, m)
+    s = 2.5
+    a = m[:3, :3]
+    np.testing.assert_allclose(t.means, c.means @ a.T + m[:3, 3], rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(t.covariances(), np.einsum("ij,njk,lk->nil", a, c.covariances(), a),
+                               rtol=1e-4, atol=1e-9 * s * s)
+    np.testing.assert_allclose(t.log_scales, c.log_scales + np.log(s), atol=1e-6)
+    # unnormalised quaternions keep their length
+    np.testing.assert_allclose(np.linalg.norm(t.quats, axis=1), np.linalg.norm(c.quats, axis=1), rtol=1e-6)
+    np.testing.assert_array_equal(t.sh, c.sh)  # SH left in the old frame (documented)
+    back = transform_cloud(t, np.linalg.inv(m))
+    np.testing.assert_allclose(back.means, c.means, atol=1e-5)
+    np.testing.assert_allclose(back.covariances(), c.covariances(), rtol=1e-4, atol=1e-12)
+
+
+def test_transform_rejects_non_similarity_unless_affine():
+    c = small_cloud(50)
+    shear = np.eye(4)
+    shear[0, 1] = 0.5
+    with pytest.raises(ParameterError, match="similarity"):
+        transform_cloud(c, shear)
+    mirror = np.diag([-1.0, 1, 1, 1])
+    with pytest.raises(ParameterError, match="reflection"):
+        transform_cloud(c, mirror)
+    with pytest.raises(ParameterError, match="4x4"):
+        transform_cloud(c, np.eye(3))
+    t = transform_cloud(c, shear, allow_affine=True)
+    a = shear[:3, :3]
+    np.testing.assert_allclose(t.covariances(), np.einsum("ij,njk,lk->nil", a, c.covariances(), a),
+                               rtol=1e-4, atol=1e-10)
+
+
+# ---- estimate_up -------------------------------------------------------------------------------
+def test_estimate_up_on_random_rotated_plants():
+    errs, confs = [], []
+    for seed in range(8):
+        sp = make_plant(seed, n_leaves=4 + seed % 5)
+        e = estimate_up_with_confidence(sp.cloud.means)
+        assert e.up.shape == (3,) and abs(np.linalg.norm(e.up) - 1) < 1e-9
+        assert 0.0 <= e.confidence <= 1.0
+        errs.append(_angle(e.up, sp.up))
+        confs.append(e.confidence)
+    errs = np.array(errs)
+    assert np.median(errs) < ANGLE_TOL, errs
+    assert (errs < 30).mean() >= 0.75, errs
+    # when it is wrong it should say so: confident answers are right
+    assert all(err < 30 for err, cf in zip(errs, confs) if cf > 0.3), list(zip(errs, confs))
+
+
+def test_estimate_up_is_rotation_equivariant_and_deterministic():
+    sp = make_plant(2, rotate=False)
+    u0 = estimate_up(sp.cloud.means)
+    assert np.array_equal(u0, estimate_up(sp.cloud.means))
+    assert _angle(u0, [0, 0, 1]) < ANGLE_TOL
+    r = Rotation.random(random_state=7).as_matrix()
+    u1 = estimate_up(sp.cloud.means @ r.T)
+    assert _angle(u1, r @ u0) < 5.0
+
+
+def test_estimate_up_bad_input():
+    with pytest.raises(ParameterError):
+        estimate_up(np.zeros((5, 3)))
+    with pytest.raises(ParameterError):
+        estimate_up(np.zeros((100, 2)))
+
+
+# ---- resolve_root --------------------------------------------------------------------------------
+def test_root_auto_ignores_floaters_below():
+    sp = make_plant(4, n_floaters=0)
+    c = sp.cloud
+    # a single floater and a small clump far below the plant
+    below = sp.root - 0.5 * sp.height * sp.up
+    clump = below + np.random.default_rng(0).normal(0, 0.005 * sp.height, (12, 3))
+    pts = np.concatenate([c.means, below[None], clump]).astype(np.float32)
+    from leaffit_usd.splats.cloud import GaussianCloud
+    n = len(pts) - len(c)
+    big = GaussianCloud(means=pts, log_scales=np.concatenate([c.log_scales, np.repeat(c.log_scales[:1], n, 0)]),
+                        quats=np.concatenate([c.quats, np.repeat(c.quats[:1], n, 0)]),
+                        opacity_logits=np.concatenate([c.opacity_logits, np.zeros(n, np.float32)]),
+                        sh=np.concatenate([c.sh, np.repeat(c.sh[:1], n, 0)]))
+    i = resolve_root(big, "auto", None, sp.up)
+    assert i < len(c)
+    assert np.linalg.norm(big.means[i] - sp.root) < ROOT_TOL * sp.height
+
+
+def test_root_point_and_index():
+    sp = make_plant(5)
+    c = sp.cloud
+    target = c.means[123] + 1e-4
+    assert resolve_root(c, f"{target[0]},{target[1]},{target[2]}", None, sp.up) == 123
+    with pytest.raises(ParameterError, match="near the plant"):
+        far = sp.root + 2 * sp.height * sp.up
+        resolve_root(c, ",".join(map(str, far)), None, sp.up)
+    for bad in ("1,2", "a,b,c", "1,2,nan"):
+        with pytest.raises(ParameterError, match="--root"):
+            resolve_root(c, bad, None, sp.up)
+    assert resolve_root(c, None, 17, sp.up) == 17
+    for bad in (-1, len(c), 2.5):
+        with pytest.raises(ParameterError, match="--root-index"):
+            resolve_root(c, None, bad, sp.up)
+    with pytest.raises(ParameterError, match="not both"):
+        resolve_root(c, "1,2,3", 4, sp.up)
+
+
+def test_root_index_is_in_file_order_after_drops():
+    c = small_cloud(20).subset(np.r_[0:5, 6:20])  # Gaussian 5 was dropped at load
+    c.file_count = 20
+    assert resolve_root(c, None, 7, np.array([0, 0, 1.0])) == 6
+    with pytest.raises(ParameterError, match="dropped"):
+        resolve_root(c, None, 5, np.array([0, 0, 1.0]))
+
+
+# ---- make_frame ----------------------------------------------------------------------------------
+def test_make_frame_normalises_plant():
+    sp = make_plant(6, n_floaters=20)
+    fc = make_frame(sp.cloud, up=sp.up, root="auto")
+    f = fc.frame
+    assert f.height == pytest.approx(sp.height, rel=0.05)
+    w = f.to_working(sp.cloud.means)
+    assert np.allclose(w[fc.root_index], 0, atol=1e-6)
+    np.testing.assert_allclose(f.rotation @ sp.up, [0, 0, 1], atol=1e-9)
+    # working frame: the plant spans about [0, 1] in z (floaters aside)
+    assert np.quantile(w[:, 2], 0.99) < 1.0 + 1e-6 and np.quantile(w[:, 2], 0.01) > -0.05
+    np.testing.assert_allclose(f.to_input(w), sp.cloud.means, atol=1e-5 * sp.height)
+    # string up and estimated up give the same kind of result
+    fc2 = make_frame(sp.cloud, up=None)
+    assert _angle(fc2.frame.up, sp.up) < 30
+    with pytest.raises(ParameterError):
+        make_frame(sp.cloud, up="sideways")
