@@ -469,6 +469,9 @@ def write_image(path, rgba_u8: np.ndarray, fmt: str | None = None) -> Path:
         if fmt == "png":
             spec = oiio.ImageSpec(W, H, 4, "uint8")
             spec.attribute("oiio:ColorSpace", "sRGB")
+            # straight alpha as is: without this OIIO un-premultiplies on write, which would
+            # destroy the dilated colours of transparent texels (the mip-map padding)
+            spec.attribute("oiio:UnassociatedAlpha", 1)
             data = img
         else:
             spec = oiio.ImageSpec(W, H, 4, "half")
@@ -494,7 +497,9 @@ def read_image(path) -> np.ndarray:
 
     from leaffit_usd.errors import InputFileError
 
-    buf = oiio.ImageBuf(str(path))
+    config = oiio.ImageSpec()
+    config.attribute("oiio:UnassociatedAlpha", 1)  # keep straight alpha (no premultiplication)
+    buf = oiio.ImageBuf(str(path), 0, 0, config)
     if buf.has_error:
         raise InputFileError(str(path), f"cannot be read as an image ({buf.geterror()})")
     px = np.asarray(buf.get_pixels(oiio.FLOAT), np.float64)
