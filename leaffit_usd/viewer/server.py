@@ -310,11 +310,16 @@ class ViewerServer:
 
     def __init__(self, session: ViewerSession, port: int = 0, token: str | None = None,
                  max_body: int = MAX_BODY):
-        from werkzeug.serving import make_server
+        from werkzeug.serving import WSGIRequestHandler, make_server
+
+        class _Quiet(WSGIRequestHandler):  # no per-request log lines (they would print the token)
+            def log_request(self, *args, **kwargs):
+                pass
 
         self.token = token or secrets.token_urlsafe(24)
         self.app = create_app(session, self.token, max_body=max_body, on_stop=self.stop)
-        self._server = make_server("127.0.0.1", int(port), self.app, threaded=True)
+        self._server = make_server("127.0.0.1", int(port), self.app, threaded=True,
+                                   request_handler=_Quiet)
         self.port = self._server.server_port
         self.url = f"http://127.0.0.1:{self.port}/{self.token}/"
         self._thread = None

@@ -364,6 +364,7 @@ window.leaffit = {
     const r = renderer.domElement.getBoundingClientRect();
     return { x: r.left + (v.x + 1) / 2 * r.width, y: r.top + (1 - v.y) / 2 * r.height, visible: Math.abs(v.z) <= 1 };
   },
+  pick(x, y) { return pickAt(x, y); },  // Gaussian index under client point (x, y), or -1
   labels() { return Array.from(S.labels); },
   state() { return S.state; },
 };

@@ -1,0 +1,100 @@
+"""The viewer driven for real in headless Chromium (Playwright): brush a leaf, assign, save.
+
+The saved labels must equal what the saved edits give through ``apply_edits`` (the path
+``segment/convert --edits`` take). Skipped when Chromium or Playwright is missing.
+"""
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from leaffit_usd.segment.edits import apply_edits, load_edits
+from leaffit_usd.splats import load_cloud, write_ply
+from leaffit_usd.viewer.server import ViewerServer, build_session
+
+CHROMIUM = "/usr/bin/chromium"
+SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "plants" / "rubber_tree.ply"
+
+pytestmark = pytest.mark.skipif(not Path(CHROMIUM).exists() and not shutil.which("chromium"),
+                                reason="chromium not installed (apt-get install chromium)")
+
+
+@pytest.fixture(scope="module")
+def sample(plant, tmp_path_factory):
+    """(ply path, ground-truth labels in file order): a bundled sample plant, else the synthetic one."""
+    gt = SAMPLE.with_name(SAMPLE.name.replace(".ply", ".gt.npz"))
+    if SAMPLE.exists() and gt.exists():
+        return SAMPLE, np.load(gt)["labels"]
+    d = tmp_path_factory.mktemp("browser")
+    write_ply(plant[0], d / "plant.ply")
+    return d / "plant.ply", plant[1]
+
+
+def test_brush_assign_save_in_chromium(sample, heat, tmp_path):
+    sync_api = pytest.importorskip("playwright.sync_api")
+    ply, truth = sample
+    cloud = load_cloud(ply)
+    truth_c = truth[cloud.file_index]
+    session = build_session(cloud, np.zeros(len(cloud), np.int32), ply, tmp_path / "e.json",
+                            tmp_path / "l.npz", solver_factory=heat)
+    server = ViewerServer(session).start_background()
+    try:
+        with sync_api.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM if Path(CHROMIUM).exists() else shutil.which("chromium"),
+                                        args=["--no-sandbox", "--disable-gpu", "--headless=new"])
+            page = browser.new_page(viewport={"width": 1100, "height": 750})
+            errors = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(server.url)
+            page.wait_for_function("() => window.leaffit && window.leaffit.ready", timeout=30000)
+            page.eval_on_selector("#radius", "e => { e.value = '0.04'; e.dispatchEvent(new Event('input')); }")
+            # choose the leaf with the most Gaussians visible under the cursor; a stroke along it
+            rng = np.random.default_rng(0)
+            best = None
+            for leaf in [k for k in np.unique(truth_c) if k > 0][:6]:
+                idx = rng.choice(np.flatnonzero(truth_c == leaf), 24, replace=False)
+                hits = page.evaluate("""async (ids) => {
+                    const out = [];
+                    for (const i of ids) {
+                      const s = window.leaffit.screenOf(i);
+                      out.push([s.x, s.y, await window.leaffit.pick(s.x, s.y)]);
+                    }
+                    return out; }""", idx.tolist())
+                good = [(x, y) for x, y, g in hits if g >= 0 and truth_c[g] == leaf]
+                if best is None or len(good) > len(best[1]):
+                    best = (leaf, good)
+            leaf, good = best
+            assert len(good) >= 4, "no leaf is visible from the default camera"
+            pts = np.array(good)
+            order = np.argsort(pts @ np.linalg.svd(pts - pts.mean(0))[2][0])  # along the leaf
+            stroke = pts[order][np.linspace(0, len(pts) - 1, 4).astype(int)]
+            page.mouse.move(*stroke[0])
+            page.mouse.down()
+            for x, y in stroke[1:]:
+                page.mouse.move(x, y, steps=4)
+            page.mouse.up()
+            page.wait_for_function("() => !window.leaffit.busy && window.leaffit.state().n_ops === 1", timeout=30000)
+            assert page.evaluate("window.leaffit.state().selected") > 0
+            page.select_option("[data-testid=target]", "new")
+            page.click("[data-testid=assign]")
+            page.wait_for_function("() => window.leaffit.state().n_ops === 2", timeout=30000)
+            assert "Leaf 1" in page.inner_text("[data-testid=leaves]")
+            page.click("[data-testid=save]")
+            page.wait_for_function("() => document.getElementById('outputs').textContent.startsWith('saved')",
+                                   timeout=30000)
+            assert not errors, errors
+            browser.close()
+    finally:
+        server.stop()
+    saved = np.load(tmp_path / "l.npz")["labels"]
+    ops = load_edits(tmp_path / "e.json", ply).operations
+    assert [o["op"] for o in ops] == ["brush", "assign"] and len(ops[0]["centers"]) >= 2
+    # same edits through the replay path (fresh cloud, fresh solver)
+    cloud2 = load_cloud(ply)
+    replayed = apply_edits(np.zeros(len(cloud2), np.int32), cloud2, load_edits(tmp_path / "e.json", ply),
+                           solver_factory=heat)
+    assert np.array_equal(cloud2.to_file_order(replayed), saved)
+    # and the brushed leaf is the one under the stroke
+    new = saved[cloud.file_index] == 1
+    assert new.sum() > 50 and (truth_c[new] == leaf).mean() > 0.9

@@ -1,0 +1,161 @@
+"""The local server's security and API (flask test client + one real socket + the CLI's Ctrl-C)."""
+import base64
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+
+import numpy as np
+import pytest
+
+from leaffit_usd.splats import write_ply
+from leaffit_usd.viewer.server import MAX_BODY, ViewerServer, build_session, create_app, is_loopback
+
+TOKEN = "t0k3n-for-tests"
+
+
+@pytest.fixture(scope="module")
+def served(plant, heat, tmp_path_factory):
+    d = tmp_path_factory.mktemp("server")
+    cloud = plant[0]
+    write_ply(cloud, d / "plant.ply")
+    s = build_session(cloud, np.zeros(len(cloud), np.int32), d / "plant.ply", d / "out.edits.json",
+                      d / "out.labels.npz", n_samples=1500, solver_factory=heat)
+    return s, d
+
+
+@pytest.fixture()
+def client(served):
+    app = create_app(served[0], TOKEN)
+    app.testing = True
+    return app.test_client()
+
+
+def test_token_required_on_every_route(client):
+    for path in ["/", "/api/meta", "/static/app.js", f"/{TOKEN}x/api/meta", "/x/api/state", "/favicon.ico"]:
+        assert client.get(path).status_code == 403, path
+    assert client.post("/api/op", json={"op": {"op": "clear"}}).status_code == 403
+    assert client.get(f"/{TOKEN}/").status_code == 200
+    assert client.get(f"/{TOKEN}/api/meta").status_code == 200
+    r = client.get(f"/{TOKEN}/static/app.js")
+    assert r.status_code == 200 and "text/javascript" in r.content_type
+    assert client.get(f"/{TOKEN}/static/three.bundle.min.js").status_code == 200
+    assert client.get(f"/{TOKEN}/static/../server.py").status_code in (403, 404)
+    assert client.get(f"/{TOKEN}/static/BUILD.md").status_code == 404  # only the page's files
+
+
+def test_non_loopback_clients_and_hosts_are_refused(client):
+    for addr in ["10.0.0.5", "192.168.1.20", "8.8.8.8", "::ffff:10.0.0.1"]:
+        r = client.get(f"/{TOKEN}/api/meta", environ_base={"REMOTE_ADDR": addr})
+        assert r.status_code == 403, addr
+    assert client.get(f"/{TOKEN}/api/meta", environ_base={"REMOTE_ADDR": "127.0.0.2"}).status_code == 200
+    assert client.get(f"/{TOKEN}/api/meta", environ_base={"REMOTE_ADDR": "::1"}).status_code == 200
+    # DNS rebinding: a foreign Host name pointing at 127.0.0.1
+    assert client.get(f"/{TOKEN}/api/meta", headers={"Host": "evil.example:8000"}).status_code == 403
+    assert not is_loopback("") and not is_loopback("garbage") and is_loopback("127.0.0.1")
+
+
+def test_oversized_bodies_are_refused(client):
+    big = json.dumps({"op": {"op": "brush", "centers": [1] * (MAX_BODY // 2), "radius": 0.1}})
+    assert len(big) > MAX_BODY
+    r = client.post(f"/{TOKEN}/api/op", data=big, content_type="application/json")
+    assert r.status_code == 413
+    r = client.post(f"/{TOKEN}/api/pick", data=b"x" * (MAX_BODY + 1), content_type="application/json")
+    assert r.status_code == 413
+
+
+def test_api_pick_preview_op_undo_save(client, served, plant):
+    s, d = served
+    cloud, truth, tips, _ = plant
+    meta = client.get(f"/{TOKEN}/api/meta").get_json()
+    assert meta["n"] == len(cloud) and meta["edits_out"] == "out.edits.json"
+    pts = client.get(f"/{TOKEN}/api/points").data
+    assert len(pts) == 15 * len(cloud)
+    pos = np.frombuffer(pts[: 12 * len(cloud)], "<f4").reshape(-1, 3)
+    assert np.allclose(pos * s.height + s.centre, cloud.means, atol=1e-5)
+    # a ray straight down onto the tip of leaf 2, in the display frame
+    o = pos[tips[1]] + np.array([0, 0, 2.0])
+    r = client.post(f"/{TOKEN}/api/pick", json={"origin": o.tolist(), "direction": [0, 0, -1]}).get_json()
+    assert r["index"] >= 0 and truth[r["index"]] == 2
+    assert client.post(f"/{TOKEN}/api/pick", json={"origin": "x"}).status_code == 400
+    op = {"op": "brush", "centers": [r["index"]], "radius": 0.1, "mode": "add"}
+    prev = client.post(f"/{TOKEN}/api/preview", json={"op": op}).get_json()
+    sel = np.unpackbits(np.frombuffer(base64.b64decode(prev["selection"]), np.uint8))[: len(cloud)].astype(bool)
+    assert sel.sum() == prev["selected"] > 0 and (truth[sel] == 2).all()
+    st = client.get(f"/{TOKEN}/api/state").get_json()
+    assert st["n_ops"] == 0 and st["selected"] == 0  # preview records nothing
+    st = client.post(f"/{TOKEN}/api/op", json={"op": op}).get_json()
+    assert st["selected"] == sel.sum() and st["can_undo"] and st["dirty"]
+    # a client cannot choose where files go: extra fields are ignored, paths never read
+    st = client.post(f"/{TOKEN}/api/op", json={"op": {"op": "assign", "label": "new", "path": "/tmp/evil"},
+                                                "path": "/tmp/evil"}).get_json()
+    labels = np.frombuffer(base64.b64decode(st["labels"]), "<i4")
+    assert np.array_equal(labels == 1, sel) and st["leaves"] == [{"label": 1, "count": int(sel.sum())}]
+    bad = client.post(f"/{TOKEN}/api/op", json={"op": {"op": "assign", "label": -3}})
+    assert bad.status_code == 400 and "label" in bad.get_json()["error"]
+    assert client.post(f"/{TOKEN}/api/op", json=[1, 2]).status_code == 400
+    assert client.post(f"/{TOKEN}/api/undo", json={}).get_json()["n_ops"] == 1
+    assert client.post(f"/{TOKEN}/api/redo", json={}).get_json()["n_ops"] == 2
+    out = client.post(f"/{TOKEN}/api/save", json={"edits": "/tmp/evil.json"}).get_json()
+    assert out["edits"] == "out.edits.json" and not os.path.exists("/tmp/evil.json")
+    saved = np.load(d / "out.labels.npz")["labels"]
+    assert np.array_equal(saved == 1, sel)
+    assert json.loads((d / "out.edits.json").read_text())["operations"][1] == {"op": "assign", "label": "new"}
+    assert out["state"]["dirty"] is False
+    r = client.get(f"/{TOKEN}/")
+    assert "script-src 'self'" in r.headers["Content-Security-Policy"] and r.headers["Cache-Control"] == "no-store"
+
+
+def test_real_socket_is_loopback_only(served):
+    server = ViewerServer(served[0], port=0).start_background()
+    try:
+        host, port = server._server.server_address[:2]
+        assert host == "127.0.0.1" and port > 0 and server.url.startswith(f"http://127.0.0.1:{port}/")
+        assert len(server.token) >= 32
+        with urllib.request.urlopen(server.url + "api/meta", timeout=10) as r:
+            assert r.status == 200
+        with pytest.raises(urllib.error.HTTPError) as e:
+            urllib.request.urlopen(f"http://127.0.0.1:{port}/api/meta", timeout=10)
+        assert e.value.code == 403
+    finally:
+        server.stop()
+    with pytest.raises(OSError):
+        urllib.request.urlopen(server.url + "api/meta", timeout=2)
+
+
+def test_cli_prints_url_and_stops_cleanly_on_ctrl_c(served, tmp_path):
+    d = served[1]
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    p = subprocess.Popen([sys.executable, "-m", "leaffit_usd", "edit", str(d / "plant.ply"), "--no-browser",
+                          "--samples", "1000", "--labels-out", str(tmp_path / "l.npz")],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        line = ""
+        deadline = time.time() + 60
+        while "http://" not in line and time.time() < deadline:
+            line = p.stdout.readline()
+            if not line and p.poll() is not None:
+                break
+        assert "http://127.0.0.1:" in line, p.stderr.read()
+        url = line.split("open ", 1)[1].strip()
+        with urllib.request.urlopen(url + "api/state", timeout=10) as r:
+            assert json.loads(r.read())["n_ops"] == 0
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=20)
+        assert p.returncode == 0, err
+        assert "stopped" in out and "Traceback" not in err
+    finally:
+        if p.poll() is None:
+            p.kill()
+
+
+def test_cli_refuses_bad_labels_file(served, tmp_path):
+    d = served[1]
+    np.savez(tmp_path / "short.npz", labels=np.zeros(5, np.int32))
+    r = subprocess.run([sys.executable, "-m", "leaffit_usd", "edit", str(d / "plant.ply"), "--no-browser",
+                        "--labels", str(tmp_path / "short.npz")], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "labels" in r.stderr and "Traceback" not in r.stderr
