@@ -8,7 +8,7 @@ edits.json`` to get exactly the same labels. Format (version 1)::
       "format": "leaffit-usd-edits", "version": 1,
       "input": {"name": "plant.ply", "sha256": "<hex of the input file's bytes>", "gaussians": N},
       "base_labels": {"sha256": "<hex of the starting labels, int32 LE, file order>", "leaves": L},
-      "geodesics": {"height": H, "samples": 8192},
+      "geodesics": {"height": H, "samples": 8192, "normals": "smallest-axis"},
       "operations": [
         {"op": "brush", "centers": [1204, 1311], "radius": 0.05, "mode": "add"},
         {"op": "assign", "label": "new"},
@@ -24,7 +24,9 @@ edits.json`` to get exactly the same labels. Format (version 1)::
   identity of a Gaussian everywhere), not in a cloud with invalid Gaussians dropped.
 * ``radius`` is a geodesic radius in working units (plant height = 1); ``geodesics.height`` is
   the plant height in input units the session used, so replay does not depend on how the up
-  axis or the root are estimated.
+  axis or the root are estimated. ``geodesics.normals`` is ``"smallest-axis"`` when the
+  geodesics were orientation-aware (each Gaussian's smallest-scale axis as its normal, as the
+  automatic segmentation does) or null.
 * Labels in operations are the session's labels (gaps allowed); the result is renumbered 1..L
   in order (:func:`leaffit_usd.segment.manual.compact_labels`).
 * Refused (``UserError``, one clear line): a different input file (hash), indices out of range or
@@ -53,6 +55,7 @@ log = logging.getLogger("leaffit_usd")
 
 FORMAT = "leaffit-usd-edits"
 VERSION = 1
+NORMALS = "smallest-axis"  # default: orientation-aware geodesics, like the automatic segmentation
 _INDEX_FIELDS = {"drag": ("source", "target"), "brush": ("centers",)}
 
 
@@ -68,6 +71,7 @@ class Edits:
     base_labels_sha256 : hash of the starting labels (see :func:`labels_sha256`), or None
     base_leaves : leaf count of the starting labels
     input_name : file name of the input (informative only)
+    normals : "smallest-axis" (orientation-aware geodesics) or None
     """
 
     input_sha256: str
@@ -78,13 +82,14 @@ class Edits:
     base_labels_sha256: str | None = None
     base_leaves: int = 0
     input_name: str = ""
+    normals: str | None = NORMALS
 
     def to_json(self) -> dict:
         return {
             "format": FORMAT, "version": VERSION,
             "input": {"name": self.input_name, "sha256": self.input_sha256, "gaussians": self.n_gaussians},
             "base_labels": {"sha256": self.base_labels_sha256, "leaves": self.base_leaves},
-            "geodesics": {"height": self.height, "samples": self.n_samples},
+            "geodesics": {"height": self.height, "samples": self.n_samples, "normals": self.normals},
             "operations": self.operations,
         }
 
@@ -124,6 +129,9 @@ def parse_edits(data, source: str = "edits") -> Edits:
         raise bad(f"geodesics.height must be a positive number, got {height!r}")
     if not isinstance(samples, int) or samples <= 0:
         raise bad(f"geodesics.samples must be a positive integer, got {samples!r}")
+    normals = geo.get("normals")
+    if normals not in (None, NORMALS):
+        raise bad(f"geodesics.normals must be null or \"{NORMALS}\", got {normals!r}")
     if not isinstance(ops, list) or not all(isinstance(o, dict) for o in ops):
         raise bad("operations must be a list of objects")
     for i, op in enumerate(ops):
@@ -137,7 +145,8 @@ def parse_edits(data, source: str = "edits") -> Edits:
     base = data.get("base_labels") or {}
     return Edits(input_sha256=sha.lower(), n_gaussians=n, height=float(height), n_samples=samples,
                  operations=ops, base_labels_sha256=base.get("sha256"),
-                 base_leaves=int(base.get("leaves") or 0), input_name=str(inp.get("name", "")))
+                 base_leaves=int(base.get("leaves") or 0), input_name=str(inp.get("name", "")),
+                 normals=normals)
 
 
 def load_edits(path, cloud_or_file) -> Edits:
@@ -232,7 +241,8 @@ def apply_edits(labels, cloud, edits: Edits, solver_factory=None, geodesics=None
                         int(labels.max(initial=0)))
     ops = to_cloud_operations(edits.operations, cloud)
     seg = ManualSegmenter(cloud.means, labels, edits.height, geodesics=geodesics,
-                          n_samples=edits.n_samples, solver_factory=solver_factory)
+                          n_samples=edits.n_samples, solver_factory=solver_factory,
+                          normals=gaussian_normals(cloud) if edits.normals else None)
     return seg.replay(ops)
 
 
@@ -255,22 +265,30 @@ def add_edits_argument(parser) -> None:
              "were recorded on a different input file)")
 
 
-def plant_height(points) -> float:
-    """Plant height in the points' units: extent along the estimated up axis (> 0).
+def gaussian_normals(cloud) -> np.ndarray:
+    """(N, 3) float64 normals, input frame: each Gaussian's smallest-scale axis, NaN where the
+    Gaussian is not flat (the automatic segmentation's ``working_normals`` in the input frame)."""
+    from leaffit_usd.segment.auto import working_normals
 
-    points : (N, 3) float, input frame. Uses ``leaffit_usd.splats.frame.estimate_up`` when
-    available, else the largest bounding-box extent (the value is recorded in edits.json, so
-    replay never recomputes it).
+    return working_normals(cloud, None)
+
+
+def plant_frame(cloud) -> tuple[float, np.ndarray]:
+    """(height, up) of a plant: its height in input units and its (3,) unit up axis, input frame.
+
+    Uses the pipeline's own frame (``leaffit_usd.splats.frame.make_frame``: estimated up, root,
+    height of the main blob above the root), so a brush radius of 0.05 means 5% of the same
+    height the automatic segmentation's parameters refer to. Falls back to the bounding box's
+    largest extent and +Z. The height is recorded in edits.json; replay never recomputes it.
     """
-    points = np.asarray(points, np.float64)
+    points = np.asarray(cloud.means, np.float64)
     try:
-        from leaffit_usd.splats.frame import estimate_up
+        from leaffit_usd.splats.frame import make_frame
 
-        up = np.asarray(estimate_up(points), np.float64)
-        h = (points @ up)
-        height = float(h.max() - h.min())
-    except ImportError:
-        height = float((points.max(0) - points.min(0)).max())
+        frame = make_frame(cloud).frame
+        height, up = float(frame.height), np.asarray(frame.up, np.float64)
+    except ImportError:  # pragma: no cover - the foundation always provides make_frame
+        height, up = float(np.ptp(points, axis=0).max()), np.array([0.0, 0.0, 1.0])
     if not np.isfinite(height) or height <= 0:
         height = float(np.ptp(points, axis=0).max()) or 1.0
-    return height
+    return height, up

@@ -67,13 +67,16 @@ class SampledGeodesics:
     points : (N, 3) float, input frame (any frame; distances come out in its units / ``height``)
     height : float > 0, plant height in the points' units (distances are divided by it)
     n_samples : size of the farthest-point subsample the solver is factored on
-    solver_factory : callable ``(points (S, 3)) -> solver`` with ``.distance(source: int) -> (S,)``
-        (default: :func:`default_solver_factory`)
+    solver_factory : callable ``(points (S, 3)[, normals (S, 3)]) -> solver`` with
+        ``.distance(source: int) -> (S,)`` (default: :func:`default_solver_factory`)
+    normals : optional (N, 3) unit normals, same frame (NaN rows = unknown): passed to the solver
+        for orientation-aware geodesics (a leaf lying on another is not short-cut), as the
+        automatic segmentation does (``leaffit_usd.segment.auto.working_normals``)
     cache_size : distance fields kept (per source sample, (S,) float64 each)
     """
 
     def __init__(self, points, height: float, n_samples: int = N_SAMPLES, solver_factory=None,
-                 k: int = K_EXTEND, cache_size: int = 1024):
+                 k: int = K_EXTEND, cache_size: int = 1024, normals=None):
         from leaffit_usd.geometry.sampling import farthest_point_sampling
 
         points = np.asarray(points, np.float64)
@@ -88,7 +91,13 @@ class SampledGeodesics:
         else:
             self.samples = farthest_point_sampling(points, int(n_samples))
         factory = solver_factory or default_solver_factory()
-        self.solver = factory(points[self.samples])
+        if normals is None:
+            self.solver = factory(points[self.samples])
+        else:
+            normals = np.asarray(normals, np.float64)
+            if normals.shape != points.shape:
+                raise ParameterError("normals", f"an array shaped like points {points.shape}", normals.shape)
+            self.solver = factory(points[self.samples], normals[self.samples])
         k = int(min(k, len(self.samples)))
         tree = cKDTree(points[self.samples])
         dist, idx = tree.query(points, k=k)
@@ -152,11 +161,11 @@ class ManualSegmenter:
     labels : (N,) int, starting labels (0 = stem / unassigned)
     height : float > 0, plant height in input units (brush radii are fractions of it)
     geodesics : optional prebuilt :class:`SampledGeodesics` (else built from ``points``)
-    n_samples, solver_factory : passed to :class:`SampledGeodesics`
+    n_samples, solver_factory, normals : passed to :class:`SampledGeodesics`
     """
 
     def __init__(self, points, labels, height: float, geodesics: SampledGeodesics | None = None,
-                 n_samples: int = N_SAMPLES, solver_factory=None):
+                 n_samples: int = N_SAMPLES, solver_factory=None, normals=None):
         points = np.asarray(points)
         labels = np.asarray(labels)
         if labels.shape != (len(points),):
@@ -164,7 +173,8 @@ class ManualSegmenter:
         if labels.size and labels.min() < 0:
             raise ParameterError("labels", "labels >= 0 (0 = stem)", int(labels.min()))
         self.n = len(points)
-        self.geodesics = geodesics or SampledGeodesics(points, height, n_samples, solver_factory)
+        self.geodesics = geodesics or SampledGeodesics(points, height, n_samples, solver_factory,
+                                                       normals=normals)
         self.initial = EditState(labels.astype(np.int32).copy(), np.zeros(self.n, bool))
         self.state = self.initial.copy()
         self.operations: list[dict] = []

@@ -141,7 +141,7 @@ class ViewerSession:
         edits = Edits(input_sha256=t.input_sha256, n_gaussians=t.n_gaussians, height=t.height,
                       n_samples=t.n_samples, operations=to_file_operations(seg.operations, self.cloud),
                       base_labels_sha256=t.base_labels_sha256, base_leaves=t.base_leaves,
-                      input_name=t.input_name)
+                      input_name=t.input_name, normals=t.normals)
         labels = self.cloud.to_file_order(seg.final_labels().astype(np.int32), fill=0)
         extra = {}
         if self.root_index is not None:
@@ -342,39 +342,37 @@ class ViewerServer:
 
 
 def build_session(cloud, labels, input_path, edits_out, labels_out, root_index=None,
-                  height=None, n_samples=None, solver_factory=None, min_opacity: float = 0.0):
+                  height=None, n_samples=None, solver_factory=None, min_opacity: float = 0.0,
+                  normals: str | None = "smallest-axis"):
     """Make a :class:`ViewerSession` for ``cloud`` (input frame) starting from ``labels`` (cloud order).
 
     input_path : the input file (hashed into the edits); height : plant height in input units
-    (default: :func:`leaffit_usd.segment.edits.plant_height`); min_opacity : Gaussians below it
-    are not pickable (floaters).
+    (default: :func:`leaffit_usd.segment.edits.plant_frame`); min_opacity : Gaussians below it
+    are not pickable (floaters); normals : "smallest-axis" for orientation-aware geodesics, or None.
     """
     from leaffit_usd.io_util import file_sha256
-    from leaffit_usd.segment.edits import Edits, labels_sha256, plant_height
+    from leaffit_usd.segment.edits import Edits, gaussian_normals, labels_sha256, plant_frame
     from leaffit_usd.segment.manual import N_SAMPLES, ManualSegmenter
     from leaffit_usd.segment.picking import GaussianBVH
 
     t0 = time.perf_counter()
-    height = float(height or plant_height(cloud.means))
+    auto_height, up = plant_frame(cloud)
+    height = float(height or auto_height)
     n_samples = int(n_samples or N_SAMPLES)
     labels = np.asarray(labels, np.int32)
     template = Edits(input_sha256=file_sha256(input_path), n_gaussians=int(cloud.file_count),
                      height=height, n_samples=n_samples,
                      base_labels_sha256=labels_sha256(cloud.to_file_order(labels)),
-                     base_leaves=int(labels.max(initial=0)), input_name=Path(input_path).name)
-    seg = ManualSegmenter(cloud.means, labels, height, n_samples=n_samples, solver_factory=solver_factory)
+                     base_leaves=int(labels.max(initial=0)), input_name=Path(input_path).name,
+                     normals=normals)
+    seg = ManualSegmenter(cloud.means, labels, height, n_samples=n_samples, solver_factory=solver_factory,
+                          normals=gaussian_normals(cloud) if normals else None)
     t1 = time.perf_counter()
     pickable = cloud.opacities >= min_opacity if min_opacity > 0 else None
     bvh = GaussianBVH.from_cloud(cloud, pickable=pickable)
     t2 = time.perf_counter()
     log.info("edit: geodesics on %d samples in %.2f s, BVH over %d Gaussians in %.2f s",
              len(seg.geodesics.samples), t1 - t0, bvh.n_pickable, t2 - t1)
-    try:
-        from leaffit_usd.splats.frame import estimate_up
-
-        up = np.asarray(estimate_up(cloud.means), np.float64)
-    except ImportError:
-        up = np.array([0.0, 0.0, 1.0])
     return ViewerSession(cloud=cloud, segmenter=seg, bvh=bvh, edits_template=template,
                          edits_out=Path(edits_out), labels_out=Path(labels_out),
                          root_index=root_index, up=up, input_name=Path(input_path).name)

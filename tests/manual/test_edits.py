@@ -134,6 +134,8 @@ def test_refused_dropped_gaussian_and_bad_operation(plant_file, heat, tmp_path):
      ' "geodesics": {"height": -1, "samples": 10}, "operations": []}', "height"),
     ('{"format": "leaffit-usd-edits", "version": 1, "input": {"sha256": "' + "a" * 64 + '", "gaussians": 3},'
      ' "geodesics": {"height": 1, "samples": 10}, "operations": [3]}', "operations"),
+    ('{"format": "leaffit-usd-edits", "version": 1, "input": {"sha256": "' + "a" * 64 + '", "gaussians": 3},'
+     ' "geodesics": {"height": 1, "samples": 10, "normals": "up"}, "operations": []}', "normals"),
 ])
 def test_malformed_files_are_refused(tmp_path, plant_file, text, words):
     p = tmp_path / "bad.json"

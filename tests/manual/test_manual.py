@@ -154,6 +154,8 @@ def test_constructor_validation(plant, geo):
         SampledGeodesics(cloud.means, height=0.0)
     with pytest.raises(ParameterError):
         geo.distance(len(cloud))
+    with pytest.raises(ParameterError, match="normals"):
+        SampledGeodesics(cloud.means, height=1.0, normals=np.zeros((3, 3)))
 
 
 def test_compact_labels():
