@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from leaffit_usd.splats.frame import LOW_UP_CONFIDENCE
+
 NAME = "inspect"
 HELP = "summarise a 3DGS capture (.ply or USD ParticleField3DGaussianSplat)"
 DESCRIPTION = """\
@@ -110,7 +112,7 @@ def format_table(s: dict) -> str:
     """The human-readable form of :func:`summarize`'s dict (one ``key  value`` line each)."""
     up = s["up"]
     conf = "" if up["confidence"] is None else f"  (confidence {up['confidence']:.2f}" + (
-        ", low: check it or pass --up)" if up["confidence"] < 0.2 else ")")
+        ", low: check it or pass --up)" if up["confidence"] < LOW_UP_CONFIDENCE else ")")
     extras = ", ".join(f"{k}:{t}" for k, t in s["extra_properties"].items()) or "none"
     rows = [
         ("file", f"{s['file']}  ({s['format'].upper()}, {_fmt_bytes(s['file_bytes'])})"),

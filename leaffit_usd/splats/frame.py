@@ -126,6 +126,7 @@ from typing import NamedTuple  # noqa: E402
 _UP_SAMPLE = 40_000        # points used by the up estimator (deterministic subsample)
 _ROOT_SAMPLE = 60_000      # points used for the connected-component analysis of --root auto
 _ROOT_FAR = 0.10           # --root X,Y,Z must lie within this fraction of the plant size
+LOW_UP_CONFIDENCE = 0.35  # below this, estimate_up was wrong in some benchmark runs (benchmarks/up_axis.py)
 
 
 def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -526,7 +527,7 @@ def make_frame(cloud: GaussianCloud, up=None, root: str | None = "auto",
         est = estimate_up_with_confidence(cloud.means)
         u = est.up
         log.info("estimated up axis (%.3f, %.3f, %.3f), confidence %.2f%s", *u, est.confidence,
-                 "" if est.confidence >= 0.2 else " (low: pass --up to be sure)")
+                 "" if est.confidence >= LOW_UP_CONFIDENCE else " (low: pass --up to be sure)")
     elif isinstance(up, str):
         u = parse_up(up)
     else:
