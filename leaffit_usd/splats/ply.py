@@ -112,6 +112,10 @@ def read_ply(path: str | os.PathLike, drop_bad: bool = True) -> GaussianCloud:
             raise InputFileError(path, "contains no Gaussians")
         if fmt == "ascii":
             data = _read_ascii(f, path, count, props, header_len)
+            layout = _Layout(data.dtype, path)
+            cloud = layout.allocate(count)
+            layout.fill(cloud, data, 0)
+            del data
         else:
             order = "<" if fmt == "binary_little_endian" else ">"
             dtype = np.dtype([(n, order + t) for n, t in props])
@@ -121,9 +125,22 @@ def read_ply(path: str | os.PathLike, drop_bad: bool = True) -> GaussianCloud:
                 raise InputFileError(
                     path, f"truncated: header declares {count} Gaussians ({expected} bytes), "
                           f"file holds {available} bytes of data")
+            layout = _Layout(dtype, path)
+            cloud = layout.allocate(count)
             f.seek(header_len)
-            data = np.fromfile(f, dtype=dtype, count=count)
-    return _cloud_from_struct(data, names, path, drop_bad)
+            # Read in chunks straight into the cloud's arrays: peak memory is the cloud plus
+            # one chunk (not the cloud plus the whole file as a structured array).
+            for start in range(0, count, _CHUNK):
+                k = min(_CHUNK, count - start)
+                block = np.fromfile(f, dtype=dtype, count=k)
+                if len(block) != k:
+                    raise InputFileError(path, f"truncated: could read only {start + len(block)} "
+                                               f"of {count} Gaussians")
+                layout.fill(cloud, block, start)
+    return drop_invalid(cloud, str(path)) if drop_bad else cloud
+
+
+_CHUNK = 131_072  # Gaussians per read (32 MB at SH degree 3)
 
 
 def _read_ascii(f, path, count, props, header_len):
@@ -142,37 +159,75 @@ def _read_ascii(f, path, count, props, header_len):
     return data
 
 
-def _cloud_from_struct(data, names, path, drop_bad) -> GaussianCloud:
-    n_rest = sum(1 for n in names if n.startswith("f_rest_"))
-    degree = {v: k for k, v in REST_COUNTS.items()}.get(n_rest)
-    if degree is None:
-        raise InputFileError(path, f"{n_rest} f_rest_* properties; expected 0, 9, 24 or 45 (SH degree 0-3)")
-    missing_rest = [f"f_rest_{i}" for i in range(n_rest) if f"f_rest_{i}" not in names]
-    if missing_rest:
-        raise InputFileError(path, f"not a 3DGS PLY: missing properties {', '.join(missing_rest)}")
+class _Layout:
+    """Where each 3DGS property of a PLY vertex record goes in a GaussianCloud.
 
-    def cols(keys):
-        out = np.empty((len(data), len(keys)), dtype=np.float32)
-        for i, k in enumerate(keys):
-            out[:, i] = data[k]
-        return out
+    When every property is a 4-byte float (the INRIA layout), a record block is viewed as an
+    (k, P) float32 table and whole column groups are gathered at once (fast); otherwise field
+    by field.
+    """
 
-    m = n_rest // 3
-    sh = np.empty((len(data), 1 + m, 3), dtype=np.float32)
-    sh[:, 0, :] = cols(["f_dc_0", "f_dc_1", "f_dc_2"])
-    if m:
-        rest = cols([f"f_rest_{i}" for i in range(n_rest)])  # channel-major
-        sh[:, 1:, :] = rest.reshape(len(data), 3, m).transpose(0, 2, 1)
-    known = set(_REQUIRED) | {f"f_rest_{i}" for i in range(n_rest)}
-    cloud = GaussianCloud(
-        means=cols(["x", "y", "z"]),
-        log_scales=cols(["scale_0", "scale_1", "scale_2"]),
-        quats=cols(["rot_0", "rot_1", "rot_2", "rot_3"]),
-        opacity_logits=np.ascontiguousarray(data["opacity"], dtype=np.float32),
-        sh=sh,
-        extra={k: np.ascontiguousarray(data[k]) for k in names if k not in known},
-    )
-    return drop_invalid(cloud, str(path)) if drop_bad else cloud
+    def __init__(self, dtype: np.dtype, path):
+        names = list(dtype.names)
+        n_rest = sum(1 for n in names if n.startswith("f_rest_"))
+        degree = {v: k for k, v in REST_COUNTS.items()}.get(n_rest)
+        if degree is None:
+            raise InputFileError(path, f"{n_rest} f_rest_* properties; expected 0, 9, 24 or 45 (SH degree 0-3)")
+        missing_rest = [f"f_rest_{i}" for i in range(n_rest) if f"f_rest_{i}" not in names]
+        if missing_rest:
+            raise InputFileError(path, f"not a 3DGS PLY: missing properties {', '.join(missing_rest)}")
+        self.dtype = dtype
+        self.m = n_rest // 3
+        known = set(_REQUIRED) | {f"f_rest_{i}" for i in range(n_rest)}
+        self.extra = [k for k in names if k not in known]
+        kinds = {dtype[k].kind + str(dtype[k].itemsize) for k in names}
+        self.uniform = kinds == {"f4"} and dtype.itemsize == 4 * len(names)
+        self.float_order = dtype[names[0]].byteorder if self.uniform else None
+        col = {k: i for i, k in enumerate(names)}
+        self.groups = {
+            "means": [col[k] for k in ("x", "y", "z")],
+            "log_scales": [col[k] for k in ("scale_0", "scale_1", "scale_2")],
+            "quats": [col[k] for k in ("rot_0", "rot_1", "rot_2", "rot_3")],
+            "dc": [col[k] for k in ("f_dc_0", "f_dc_1", "f_dc_2")],
+            "opacity": col["opacity"],
+            # f_rest is channel-major: all coefficients of R, then G, then B
+            "rest": [[col[f"f_rest_{c * self.m + j}"] for j in range(self.m)] for c in range(3)],
+        }
+        self.names = {"means": ("x", "y", "z"), "log_scales": ("scale_0", "scale_1", "scale_2"),
+                      "quats": ("rot_0", "rot_1", "rot_2", "rot_3"), "dc": ("f_dc_0", "f_dc_1", "f_dc_2")}
+
+    def allocate(self, n: int) -> GaussianCloud:
+        return GaussianCloud(
+            means=np.empty((n, 3), np.float32), log_scales=np.empty((n, 3), np.float32),
+            quats=np.empty((n, 4), np.float32), opacity_logits=np.empty(n, np.float32),
+            sh=np.empty((n, 1 + self.m, 3), np.float32),
+            extra={k: np.empty(n, self.dtype[k].newbyteorder("=")) for k in self.extra})
+
+    def fill(self, cloud: GaussianCloud, block: np.ndarray, start: int) -> None:
+        sl = slice(start, start + len(block))
+        g = self.groups
+        if self.uniform:
+            t = block.view(np.dtype(self.dtype[0].str)).reshape(len(block), -1)
+            cloud.means[sl] = t[:, g["means"]]
+            cloud.log_scales[sl] = t[:, g["log_scales"]]
+            cloud.quats[sl] = t[:, g["quats"]]
+            cloud.opacity_logits[sl] = t[:, g["opacity"]]
+            cloud.sh[sl, 0, :] = t[:, g["dc"]]
+            for c in range(3 if self.m else 0):
+                cloud.sh[sl, 1:, c] = t[:, g["rest"][c]]
+        else:
+            for attr in ("means", "log_scales", "quats"):
+                dst = getattr(cloud, attr)
+                for i, k in enumerate(self.names[attr]):
+                    dst[sl, i] = block[k]
+            cloud.opacity_logits[sl] = block["opacity"]
+            for i, k in enumerate(self.names["dc"]):
+                cloud.sh[sl, 0, i] = block[k]
+            for c in range(3 if self.m else 0):
+                for j in range(self.m):
+                    cloud.sh[sl, 1 + j, c] = block[f"f_rest_{c * self.m + j}"]
+        for k in self.extra:
+            cloud.extra[k][sl] = block[k]
 
 
 def ply_dtype(cloud: GaussianCloud, order: str = "<") -> np.dtype:
