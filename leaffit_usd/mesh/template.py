@@ -25,15 +25,20 @@ Pipeline (template local frame: petiole base at the origin, +X base -> apex, +Z 
 5. **Bake** — the template's Gaussians (``cloud_working.subset(fits.template_gaussians)``,
    mapped into the template frame by ``inverse(fits.leaf_to_working[template row])``) are
    rendered with THE splat renderer (:mod:`leaffit_usd.splats.render`) from +Z (front) and from
-   -Z (back). Colour is un-premultiplied; alpha is the splat coverage ramped around
-   ``alpha_threshold`` (about one texel of anti-aliasing) with interior pin-holes closed, so the
-   cut-out follows the leaf's own silhouette; colours are then dilated outwards over the whole
-   image (nearest covered texel) so mip-maps never bleed background into the leaf.
-   DC colours only: the cloud's SH rest coefficients are not rotated into the working frame.
+   -Z (back). Each side is its own layer of Gaussians (those on its side of the sheet: signed
+   offset along the closest face's normal) composited *over* the other layer: the rasteriser
+   sorts Gaussians globally by centre depth, which would mix a blade's two thin layers wherever
+   the blade is tilted in the view; gaps in a layer show the other one. Colour is
+   un-premultiplied; alpha is 1 where the splat coverage exceeds ``alpha_threshold`` (interior
+   pin-holes closed) with a one-texel anti-aliased rim, so the cut-out follows the leaf's own
+   silhouette; colours are then dilated outwards over the whole image (nearest covered texel) so
+   mip-maps never bleed background into the leaf. DC colours only: the cloud's SH rest
+   coefficients are not rotated into the working frame.
 
-A side whose splats cover less than ``min_coverage`` of the sheet's silhouette (a leaf seen from
-one side only, a sparse capture) gets the other side's texture (mirrored to stay registered), or
-when both are poor, its colours inpainted over the sheet and alpha = the sheet — with a warning.
+Fallbacks (each with a warning): a side with few Gaussians of its own (a leaf seen from one side
+only) shows the other layer — reported as ``one_layer_sides``; a side still covering less than
+``min_coverage`` of the sheet's silhouette takes the other side's texture; when both are poor (a
+sparse capture) colours are inpainted over the sheet and alpha = the sheet.
 """
 from __future__ import annotations
 
@@ -244,11 +249,6 @@ def _template_row(fits) -> int:
     return int(rows[0])
 
 
-def _ramp(alpha: np.ndarray, thr: float) -> np.ndarray:
-    w = min(0.25, thr, 1 - thr)
-    return np.clip((alpha - (thr - w)) / (2 * w), 0.0, 1.0)
-
-
 def _dilate_colors(rgb: np.ndarray, solid: np.ndarray) -> np.ndarray:
     """Every non-solid texel takes the colour of its nearest solid texel (edge padding to infinity)."""
     from scipy.ndimage import distance_transform_edt
@@ -259,17 +259,24 @@ def _dilate_colors(rgb: np.ndarray, solid: np.ndarray) -> np.ndarray:
     return rgb[ri, ci]
 
 
-def _side_texture(render, thr: float, sheet_mask: np.ndarray):
-    """RGBA float (H, W, 4) straight alpha, and the splat coverage of the sheet's silhouette."""
+def _side_texture(color: np.ndarray, alpha: np.ndarray, thr: float, sheet_mask: np.ndarray):
+    """RGBA float (H, W, 4) straight alpha from a premultiplied render (color (H, W, 3), alpha
+    (H, W)), and the splat coverage of the sheet's silhouette."""
     from scipy.ndimage import binary_fill_holes
 
-    color, alpha = np.asarray(render.color, np.float64), np.asarray(render.alpha, np.float64)
     straight = color / np.maximum(alpha, 1e-6)[..., None]
     straight = np.clip(straight, 0.0, 1.0)
-    solid = alpha > thr
-    a = _ramp(alpha, thr)
-    a[binary_fill_holes(solid)] = 1.0  # opaque inside (pin-holes too); the ramp only at the rim
-    cover = float(solid[sheet_mask].mean()) if sheet_mask.any() else 0.0
+    solid = binary_fill_holes(alpha > thr)  # opaque inside, pin-holes too
+    # a one-texel anti-aliased rim: texels just outside the cut take alpha / thr, the rest 0
+    from scipy.ndimage import distance_transform_edt
+
+    rim = (distance_transform_edt(~solid) <= 1.5) & ~solid if solid.any() else np.zeros_like(solid)
+    a = np.where(solid, 1.0, np.where(rim, np.clip(alpha / thr, 0.0, 1.0), 0.0))
+    # nothing outside the sheet is ever drawn: keep alpha within the sheet's silhouette (+2 texels)
+    # so splats beyond the rim (or stray ones) never reach the image border
+    if sheet_mask.any():
+        a = np.where(distance_transform_edt(~sheet_mask) <= 2.0, a, 0.0)
+    cover = float((alpha > thr)[sheet_mask].mean()) if sheet_mask.any() else 0.0
     rgb = _dilate_colors(straight, alpha > 0.9 * thr)
     return np.concatenate([rgb, a[..., None]], -1), cover
 
@@ -281,10 +288,30 @@ def _inpainted(tex: np.ndarray, sheet_mask: np.ndarray, thr: float) -> np.ndarra
     return np.concatenate([rgb, sheet_mask[..., None].astype(np.float64)], -1)
 
 
-def bake_textures(cloud_working, fits, outline_xy: np.ndarray, bounds, size: int,
-                  thr: float = 0.5, min_coverage: float = 0.6):
+def signed_sheet_offset(points: np.ndarray, verts: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(M,) signed distance of each point to the sheet along the closest face's normal (+ = front)."""
+    import open3d as o3d
+
+    if len(points) == 0 or len(faces) == 0:
+        return np.zeros(len(points))
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(verts, np.float32)),
+                        o3d.core.Tensor(np.ascontiguousarray(faces, np.uint32)))
+    r = scene.compute_closest_points(o3d.core.Tensor(np.ascontiguousarray(points, np.float32)))
+    cp, n = r["points"].numpy().astype(np.float64), r["primitive_normals"].numpy().astype(np.float64)
+    return ((points - cp) * n).sum(1)
+
+
+def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np.ndarray,
+                  outline_xy: np.ndarray, bounds, size: int, thr: float = 0.5,
+                  min_coverage: float = 0.6):
     """Front and back RGBA float textures (H, W, 4) in [0, 1], straight alpha, row 0 = top.
 
+    sheet_points, sheet_faces : the sheet (template frame, CCW from +Z). A capture of a leaf holds
+        a layer of Gaussians on each side of the blade; each side is its own layer (Gaussians on
+        that side of the sheet: signed offset along the closest face's normal) composited over
+        the other layer, so the global depth sort of the rasteriser cannot mix the two layers
+        where the blade is tilted in the view, and gaps in one layer show the other.
     outline_xy : (k, 2) the sheet's outer boundary, template frame (coverage and fallbacks)
     bounds : the front texture's (xmin, xmax, ymin, ymax), template frame; the back texture is
         its mirror image (column c of the back = column W-1-c of the front)
@@ -301,11 +328,38 @@ def bake_textures(cloud_working, fits, outline_xy: np.ndarray, bounds, size: int
         return flat, flat[:, ::-1].copy(), dict(coverage_front=0.0, coverage_back=0.0,
                                                  texture_fallback="flat")
     t0 = time.perf_counter()
-    fr = render_orthographic_np(means, cov, colors, opac, size, size, bounds)
-    bk = render_orthographic_np(means, cov, colors, opac, size, size, bounds, from_below=True)
+    off = signed_sheet_offset(means, sheet_points, sheet_faces)
+    info["front_gaussians"] = int((off >= 0).sum())
+    info["back_gaussians"] = int((off < 0).sum())
+
+    def render(sel, from_below):
+        sel = np.flatnonzero(sel)
+        if len(sel) == 0:
+            z = np.zeros((size, size))
+            return z[..., None].repeat(3, -1), z
+        r = render_orthographic_np(means[sel], cov[sel], colors[sel], opac[sel], size, size, bounds,
+                                   from_below=from_below)
+        return np.asarray(r.color, np.float64), np.asarray(r.alpha, np.float64)
+
+    def side(own_sel, from_below):
+        """The side's own layer composited over the other layer (premultiplied 'over')."""
+        c1, a1 = render(own_sel, from_below)
+        c2, a2 = render(~own_sel, from_below)
+        own_cover = float((a1 > thr)[mask].mean()) if mask.any() else 0.0
+        return (c1 + (1 - a1)[..., None] * c2, a1 + (1 - a1) * a2), own_cover
+
+    front_sel = off >= 0
+    (fc, fa), own_f = side(front_sel, False)
+    (bc, ba), own_b = side(~front_sel, True)   # registered with the front (not mirrored yet)
+    front, cf = _side_texture(fc, fa, thr, mask)
+    back_reg, cb = _side_texture(bc, ba, thr, mask)
+    info["own_layer_coverage_front"], info["own_layer_coverage_back"] = own_f, own_b
+    one_layer = [nm for nm, c in (("front", own_f), ("back", own_b)) if c < min_coverage]
+    if one_layer:
+        log.warning("mesh: the leaf's %s side has few Gaussians of its own (seen from one side "
+                    "only?); that texture shows the other layer", " and ".join(one_layer))
+    info["one_layer_sides"] = one_layer
     info["bake_seconds"] = time.perf_counter() - t0
-    front, cf = _side_texture(fr, thr, mask)
-    back_reg, cb = _side_texture(bk, thr, mask)  # registered with the front (not mirrored yet)
     info["coverage_front"], info["coverage_back"] = cf, cb
     fallback = None
     if cf < min_coverage and cb < min_coverage:
@@ -315,13 +369,13 @@ def bake_textures(cloud_working, fits, outline_xy: np.ndarray, bounds, size: int
         front, back_reg = _inpainted(front, mask, thr), _inpainted(back_reg, mask, thr)
     elif cb < min_coverage:
         fallback = "back_from_front"
-        log.warning("mesh: the leaf's back is covered only %.0f%% (seen from one side?); "
-                    "the back texture reuses the front", 100 * cb)
+        log.warning("mesh: the leaf's back is covered only %.0f%%; the back texture reuses the "
+                    "front", 100 * cb)
         back_reg = front.copy()
     elif cf < min_coverage:
         fallback = "front_from_back"
-        log.warning("mesh: the leaf's front is covered only %.0f%% (seen from one side?); "
-                    "the front texture reuses the back", 100 * cf)
+        log.warning("mesh: the leaf's front is covered only %.0f%%; the front texture reuses the "
+                    "back", 100 * cf)
         front = back_reg.copy()
     info["texture_fallback"] = fallback
     info["alpha_coverage_front"] = float((front[..., 3] > thr).mean())
@@ -367,7 +421,7 @@ def build_template_mesh(cloud_working, fits, params: MeshParams | None = None) -
     bounds = uv_bounds(P[:, :2], size, params.texture_margin)
     uv_front = planar_uvs(P[:, :2], bounds)
     uv_back = np.stack([1.0 - uv_front[:, 0], uv_front[:, 1]], 1)
-    front, back, tinfo = bake_textures(cloud_working, fits, P[outer, :2], bounds, size,
+    front, back, tinfo = bake_textures(cloud_working, fits, P, Fs, P[outer, :2], bounds, size,
                                        params.alpha_threshold, params.min_coverage)
     timings["bake"] = time.perf_counter() - t0
 
