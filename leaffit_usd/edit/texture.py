@@ -93,17 +93,20 @@ def _unpremultiply(img):
 
 
 # ---- edits ----------------------------------------------------------------------------------
+def resize_image(img: np.ndarray, height: int, width: int) -> np.ndarray:
+    """(h, w, C) float image resampled to (height, width, C) with OIIO's filtered resize."""
+    dst = oiio.ImageBuf(oiio.ImageSpec(width, height, img.shape[2], oiio.FLOAT))
+    iba.resize(dst, _to_buf(img))
+    return _from_buf(dst)
+
+
 def replace_texture(template: np.ndarray, new_image: np.ndarray, new_has_alpha: bool = False) -> np.ndarray:
     """The new image resized to the template's resolution (OIIO resize, filtered).
 
     template : (H, W, 4) the current texture; new_image : (h, w, 4) any size.
     The alpha (leaf silhouette) is the template's unless ``new_has_alpha``.
     """
-    h, w = template.shape[:2]
-    spec = oiio.ImageSpec(w, h, 4, oiio.FLOAT)
-    dst = oiio.ImageBuf(spec)
-    iba.resize(dst, _to_buf(new_image))
-    out = np.clip(_from_buf(dst), 0, 1)
+    out = np.clip(resize_image(new_image, *template.shape[:2]), 0, 1)
     if not new_has_alpha:
         out[..., 3] = template[..., 3]
     return out
