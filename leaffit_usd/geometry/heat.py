@@ -41,7 +41,7 @@ from leaffit_usd.geometry.knn import interpolation_matrix, knn
 log = logging.getLogger("leaffit_usd")
 
 SLIVER = 0.02        # drop a triangle if area < SLIVER * (longest edge)^2 (min angle ~2 degrees)
-LONG_EDGE = 3.0      # drop elements longer than LONG_EDGE x the local spacing of their vertices
+LONG_EDGE = 1.5      # drop elements longer than 1.5 x the 8th-neighbour distance of their vertices (~2.5 spacings)
 ORIENT_COS = 0.8     # orientation test: |n_tri . n_vertex| >= 0.8 (37 deg)
 EDGE_SIN = 0.4     # |e . n_vertex| <= 0.4: an edge leaves a tangent plane by < 24 deg
 
@@ -155,7 +155,7 @@ class GeodesicSolver:
             longest = np.sqrt(np.max([((p1 - p0) ** 2).sum(1), ((p2 - p1) ** 2).sum(1),
                                       ((p0 - p2) ** 2).sum(1)], axis=0))
             keep = area > SLIVER * longest**2
-            keep &= longest <= LONG_EDGE * spacing[tris].max(1)
+            keep &= longest <= LONG_EDGE * spacing[tris].min(1)
             tris = tris[keep]
             area, cr = area[keep], cr[keep]
             keep = np.ones(len(tris), bool)
@@ -192,14 +192,14 @@ class GeodesicSolver:
             e = e[poor[e[:, 0]] | poor[e[:, 1]]]
             vec = x[e[:, 1]] - x[e[:, 0]]
             ln = np.linalg.norm(vec, axis=1)
-            ok = (ln > 0) & (ln <= LONG_EDGE * spacing[e].max(1))
+            ok = (ln > 0) & (ln <= LONG_EDGE * spacing[e].min(1))
             if self._nrm is not None:
                 u = vec / np.maximum(ln, 1e-300)[:, None]
                 for c in range(2):
                     nv = self._nrm[e[:, c]]
                     known = np.isfinite(nv).all(1)
                     ok &= ~known | (np.abs((u * np.nan_to_num(nv)).sum(1)) <= EDGE_SIN)
-            good = (ln > 0) & (ln <= LONG_EDGE * spacing[e].max(1))
+            good = (ln > 0) & (ln <= LONG_EDGE * spacing[e].min(1))
             edges, dropped_edges = e[ok], e[good & ~ok]
         else:
             edges = dropped_edges = np.zeros((0, 2), np.int64)

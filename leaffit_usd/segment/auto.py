@@ -63,6 +63,11 @@ class SegmentParams:
     epsilon : diameter under which the petiole starts (0.05)
     rho : early protection window, fraction of the tip-to-first-junction path (0.25)
     geodesic_points : extra random Gaussians in the geodesic domain (ours; 12000)
+    fps_candidates : FPS runs on a seeded random subset of this many Gaussians (ours; 40000;
+        0 = all): FPS costs O(N N_s), 0.6-1.5 s on 100k points, and the subset is still dense
+        (~5 Gaussians per sample) so tips and margins are kept
+    outlier_factor : a Gaussian whose 8th-neighbour distance exceeds this factor times the median
+        is a floater, left unassigned (ours; 4.0 = 16x sparser than typical; 0 disables)
     path_neighbors : neighbours for steepest descent and the merge test (ours; 16)
     t_coef : heat-method time step as a multiple of h^2 (geometry-central's 1.0)
     orientation_aware : use normals in the geodesic operator when they are given (ours; True)
@@ -77,6 +82,8 @@ class SegmentParams:
     epsilon: float = 0.05
     rho: float = 0.25
     geodesic_points: int = 12000
+    fps_candidates: int = 40000
+    outlier_factor: float = 4.0
     path_neighbors: int = 16
     t_coef: float = 1.0
     orientation_aware: bool = True
@@ -84,7 +91,8 @@ class SegmentParams:
     seed: int = 0
 
     def validate(self) -> "SegmentParams":
-        ints = {"n_samples": 2, "n_neighbors": 1, "geodesic_points": 0, "path_neighbors": 2}
+        ints = {"n_samples": 2, "n_neighbors": 1, "geodesic_points": 0, "path_neighbors": 2,
+                "fps_candidates": 0}
         for name, lo in ints.items():
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < lo:
@@ -93,6 +101,8 @@ class SegmentParams:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ParameterError(name, "a positive number (working units)", v)
+        if not (np.isfinite(self.outlier_factor) and self.outlier_factor >= 0):
+            raise ParameterError("outlier_factor", "a number >= 0 (0 disables)", self.outlier_factor)
         if not (0 <= self.rho < 1):
             raise ParameterError("rho", "a fraction in [0, 1)", self.rho)
         return self
@@ -133,12 +143,21 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
     tm = timings if timings is not None else {}
     t0 = time.perf_counter()
 
-    # -- samples and geodesic domain -------------------------------------------------------
-    samples = farthest_point_sampling(pts, p.n_samples, start=root)
+    # -- outliers, samples and geodesic domain ----------------------------------------------
+    rng = np.random.default_rng(p.seed)
+    inlier = _inliers(pts, p.outlier_factor)
+    inlier[root] = True
+    if (~inlier).any():
+        log.info("%d isolated Gaussians (floaters) left out of the segmentation", int((~inlier).sum()))
+    pool = np.flatnonzero(inlier)
+    if len(pool) > p.fps_candidates > 0:  # FPS cost is O(N N_s): run it on a random subset
+        pool = np.union1d(rng.choice(pool, p.fps_candidates, replace=False), [root])
+    start = int(np.searchsorted(pool, root))
+    samples = pool[farthest_point_sampling(pts[pool], p.n_samples, start=start)]
     if root not in set(samples.tolist()):
         samples = np.union1d(samples, [root])
-    rng = np.random.default_rng(p.seed)
-    extra = rng.choice(n, size=min(n, p.geodesic_points), replace=False)
+    inl = np.flatnonzero(inlier)
+    extra = rng.choice(inl, size=min(len(inl), p.geodesic_points), replace=False)
     domain = np.union1d(samples, extra)
     tm["sampling"] = time.perf_counter() - t0
 
@@ -188,7 +207,30 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
     t1 = time.perf_counter()
     root_local = int(np.flatnonzero(samples == root)[0])
     order = apex_local[np.argsort(-dr_s[apex_local], kind="stable")]
-    tree, apex_paths = _build_tree(order, root_local, dr_s, pnb, tree_kd, sp_pts, nk)
+    fine_nb = lambda c: pnb[c][pnb[c] >= 0]  # noqa: E731
+    cache = {}
+    sp_med = float(np.median(spacing)) if kp >= 1 else p.epsilon
+    r_cap = 2 * p.epsilon
+    half_band = max(p.delta / 2, sp_med)
+
+    def merge_nb(c):
+        """Samples on the same cross-section as c (nearest first): within the local diameter of
+        the D_r iso-band through c (a stem's girth, a blade's width), at least 3 spacings, at most
+        2 epsilon. Paths on opposite sides of a thick stem thus merge; the paper's 512 neighbours
+        would do it too, but its leaping descent leaves too few visited nodes to touch."""
+        if c not in cache:
+            d, i = tree_kd.query(sp_pts[c], k=max(nk, 1) + 1, distance_upper_bound=r_cap)
+            ok = np.isfinite(d)
+            d, i = d[ok], i[ok]
+            band = np.abs(dr_s[i] - dr_s[c]) <= half_band
+            r = max(3 * sp_med, float(d[band].max()) if band.any() else 0.0)
+            cache[c] = i[1:][d[1:] <= r]
+        return cache[c]
+
+    def wide_nb(c):
+        return tree_kd.query(sp_pts[c], k=max(nk, 1) + 1)[1][1:]
+
+    tree, apex_paths = _build_tree(order, root_local, dr_s, fine_nb, merge_nb, wide_nb)
     tm["tree"] = time.perf_counter() - t1
 
     seg_params = asdict(p)
@@ -209,7 +251,7 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
         return Dd[solver._near[gauss], j]
 
     adj_r, adj_c = [], []
-    anc = [np.asarray(pth) for pth in apex_paths]  # node indices, apex -> root
+    anc = [np.asarray(pth) for pth in apex_paths]  # tree node indices, apex -> root
     for i in range(A):
         set_i = {v: k for k, v in enumerate(anc[i].tolist())}
         for j in range(i + 1, A):
@@ -219,6 +261,8 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
             lca_g = samples[tree.nodes[lca]]
             direct = 0.5 * (Dd[dom_apex[j], i] + Dd[dom_apex[i], j])
             via = da(i, lca_g) + da(j, lca_g)
+            log.debug("apex pair %d,%d: direct %.3f via lca %.3f (lca D_r %.3f)", i, j, direct, via,
+                      d_root[lca_g])
             if direct < via - p.tau:
                 adj_r.append(i), adj_c.append(j)
     g = coo_matrix((np.ones(len(adj_r)), (adj_r, adj_c)), shape=(A, A))
@@ -233,11 +277,14 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
     groups = np.unique(group)
     tips_j = [int(max(np.flatnonzero(group == gid), key=lambda j: dr_s[order[j]])) for gid in groups]
     D_all = solver.transfer(Dd[:, tips_j], [[int(apex_g[j])] for j in tips_j])  # (N, G)
+    D_all[~inlier] = np.inf  # a floater's interpolated distance means nothing
     leaf_tip, leaf_base, base_dist, keep = [], [], [], []
     for col, j in enumerate(tips_j):
-        path_nodes = anc[j]
-        path_g = samples[np.asarray([tree.nodes[v] for v in path_nodes])]
-        base_g, b, has_blade = _petiole_base(pts, D_all[:, col], path_g, children[path_nodes], p)
+        cpath = anc[j]
+        junction = next((k for k in range(1, len(cpath)) if children[cpath[k]] >= 2), len(cpath) - 1)
+        junction_g = int(samples[tree.nodes[cpath[junction]]])
+        path_g = samples[np.asarray([tree.nodes[v] for v in apex_paths[j]])]
+        base_g, b, has_blade = _petiole_base(pts, D_all[:, col], path_g, junction_g, p)
         if p.require_blade and not has_blade:
             log.info("apex %d: no blade wider than epsilon=%.3g along its path; not a leaf",
                      int(apex_g[j]), p.epsilon)
@@ -257,7 +304,7 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
         perm = np.argsort(rank)
         leaf_tip = np.asarray(leaf_tip, np.int64)[perm]
         leaf_base = np.asarray(leaf_base, np.int64)[perm]
-    labels[~reach] = 0
+    labels[~reach | ~inlier] = 0
     apex_labels = group_label[np.searchsorted(groups, group)].astype(np.int32)
     tm["petiole_labels"] = time.perf_counter() - t1
     tm["total"] = time.perf_counter() - t0
@@ -266,11 +313,25 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
                    d_root, seg_params)
 
 
-def _build_tree(order, root_local, dr, pnb, kd, sp_pts, nk):
+def _inliers(pts: np.ndarray, factor: float, k: int = 8) -> np.ndarray:
+    """(N,) bool: False for isolated Gaussians (8th-neighbour distance > factor x median)."""
+    n = len(pts)
+    if factor <= 0 or n <= k + 1:
+        return np.ones(n, bool)
+    d, _ = cKDTree(pts).query(pts, k=k + 1, workers=-1)
+    dk = d[:, -1]
+    med = np.median(dk)
+    if med <= 0:
+        return np.ones(n, bool)
+    return dk <= factor * med
+
+
+def _build_tree(order, root_local, dr, neighbours, merge_nb, wide):
     """Rootward tree over the samples by steepest descent with the deferred-merge rule.
 
-    order : apex sample indices, farthest first; dr : (S,) D_r at samples; pnb : (S, k) descent
-    neighbours (-1 = none). Returns the tree and, per apex, its path as node indices apex -> root.
+    order : apex sample indices, farthest first; dr : (S,) D_r at samples; neighbours(c) : the
+    descent neighbourhood of sample c; merge_nb(c) : the neighbourhood tested for visited nodes,
+    nearest first; wide(c) : a wider one, used only to leave a local minimum. Returns the tree and, per apex, its path as node indices apex -> root.
     """
     tree = _Tree(nodes=[root_local], parent=[-1], pos={root_local: 0})
     owner = {root_local: -1}  # sample -> path id that visited it
@@ -284,25 +345,25 @@ def _build_tree(order, root_local, dr, pnb, kd, sp_pts, nk):
         guard = 0
         while True:
             guard += 1
-            nbr = pnb[cur][pnb[cur] >= 0]
-            touched = [v for v in nbr.tolist() if v in tree.pos]
+            nbr = neighbours(cur)
+            touched = [v for v in merge_nb(cur).tolist() if v in tree.pos]
             if cur in tree.pos:
                 attach = cur
                 chain.pop()
                 break
             if touched:
                 if pending:  # deferred merge: second consecutive contact -> merge here
-                    attach = min(touched, key=lambda v: dr[v])
+                    attach = touched[0]  # the nearest visited node: the junction
                     break
                 pending = True
             else:
                 pending = False
             cand = nbr[dr[nbr] < dr[cur]] if len(nbr) else nbr
-            if len(cand) == 0 and nk > 0:  # stuck in a local minimum: look wider
-                big = kd.query(sp_pts[cur], k=nk + 1)[1]
+            if len(cand) == 0:  # stuck in a local minimum: look wider
+                big = wide(cur)
                 cand = big[dr[big] < dr[cur]]
             if len(cand) == 0 or guard > len(dr) + 5:
-                attach = min(touched, key=lambda v: dr[v]) if touched else root_local
+                attach = touched[0] if touched else root_local
                 break
             nxt = int(cand[np.argmin(dr[cand])])
             chain.append(nxt)
@@ -329,16 +390,18 @@ def _path_to_root(tree: _Tree, node: int) -> list:
     return out
 
 
-def _petiole_base(pts, d_a, path_g, n_children, p: SegmentParams):
+def _petiole_base(pts, d_a, path_g, junction_g, p: SegmentParams):
     """March from the tip along ``path_g`` (Gaussians, tip -> root); returns (base Gaussian,
     base distance D_a[base], whether some node had a local diameter >= epsilon).
 
-    d_a : (N,) D_a of this leaf's primary tip at every Gaussian; n_children : children count of
-    each path node in the tree (>= 2 = junction).
+    d_a : (N,) D_a of this leaf's primary tip at every Gaussian; junction_g : the Gaussian at the
+    first junction of the tip's path in the paper's tree (the protection window is the first
+    ``rho`` of D_a up to it).
     """
     dvals = d_a[path_g]
-    junction = next((k for k in range(1, len(path_g)) if n_children[k] >= 2), len(path_g) - 1)
-    protect = p.rho * dvals[junction]
+    protect = p.rho * d_a[junction_g]
+    junction = int(np.searchsorted(np.maximum.accumulate(dvals), d_a[junction_g]))
+    junction = min(max(junction, 1), len(path_g) - 1)
     fin = np.isfinite(d_a)
     limit = dvals.max() + p.delta
     cand = np.flatnonzero(fin & (d_a <= limit))
@@ -375,3 +438,23 @@ def _result(n, root, samples, tree, apex_g, apex_labels, leaf_tip, leaf_base, la
         dist_root=d_root.astype(np.float32),
         params=prm,
     )
+
+
+def working_normals(cloud, rotation: np.ndarray | None = None, flat_ratio: float = 0.5) -> np.ndarray:
+    """(N, 3) float64 unit normals of a GaussianCloud's Gaussians, for orientation-aware geodesics.
+
+    The normal is the smallest-scale axis; it is NaN (unknown) where the Gaussian is not flat
+    (smallest scale > ``flat_ratio`` x middle scale: a stem Gaussian's two small axes are alike).
+    rotation : (3, 3) input axes -> working axes (``Frame.rotation``); None keeps the input frame.
+    """
+    R = cloud.rotation_matrices().astype(np.float64)
+    s = cloud.scales.astype(np.float64)
+    order = np.argsort(s, axis=1)
+    n = np.take_along_axis(R, order[:, None, :1], axis=2)[:, :, 0]
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    s_sorted = np.take_along_axis(s, order, axis=1)
+    flat = s_sorted[:, 0] <= flat_ratio * s_sorted[:, 1]
+    if rotation is not None:
+        n = n @ np.asarray(rotation, np.float64).T
+    n[~flat] = np.nan
+    return n

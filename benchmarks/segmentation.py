@@ -1,0 +1,125 @@
+"""Segmentation benchmark: the paper's Table 1 (Acc, mIoU, mF1, PQ, time; mean and std).
+
+Runs ours (heat geodesics, :func:`leaffit_usd.segment.auto.segment_plant`) and the training-free
+Euclidean-density baseline (:func:`leaffit_usd.segment.baseline.segment_density`) on the generated
+benchmark plants (``samples.benchmark_suite()``, ground truth from the generator), reported per
+group: the paper's "elliptic" set (its six plants: rubber tree, green pepper, golden pothos,
+black pearl pepper, ruby leaf, white flag bush), and by the generator's leaf family: elliptic,
+lobed, long-thin, other (cordate, mixed) and the hard overlap plants (touching, vertical,
+horizontal). Time is segmentation only (frame, normals, segment), not file reading or generation.
+
+    .venv/bin/python benchmarks/segmentation.py [--gaussians 100000] [--only NAME ...]
+
+Writes benchmarks/results/segmentation.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from leaffit_usd.metrics import segmentation_scores  # noqa: E402
+from leaffit_usd.segment.auto import SegmentParams, segment_plant, working_normals  # noqa: E402
+from leaffit_usd.segment.baseline import segment_density  # noqa: E402
+from leaffit_usd.splats.frame import make_frame  # noqa: E402
+
+PAPER_ELLIPTIC = ["rubber_tree", "green_pepper", "golden_pothos", "black_pearl_pepper", "ruby_leaf",
+                  "white_flag_bush"]
+METRICS = ["acc", "miou", "mf1", "pq", "time"]
+
+
+def category(spec) -> str:
+    if spec.hard or spec.overlap != "none":
+        return "overlap"
+    return {"elliptic": "elliptic", "lobed": "lobed", "thin": "long-thin"}.get(spec.kind, "other")
+
+
+def run_one(name, spec, seed, methods):
+    from samples.generate import make_plant
+
+    cloud, gt = make_plant(spec, seed)
+    out = {"name": name, "kind": spec.kind, "overlap": spec.overlap, "category": category(spec),
+           "leaves": int(gt.labels.max()), "gaussians": len(cloud)}
+    for meth in methods:
+        t0 = time.perf_counter()
+        fc = make_frame(cloud, up=gt.up, root=None, root_index=int(gt.root_index))
+        pts = fc.frame.to_working(cloud.means)
+        if meth == "ours":
+            nrm = working_normals(cloud, fc.frame.rotation)
+            seg = segment_plant(pts, fc.root_index, SegmentParams(), normals=nrm)
+            labels = seg.labels
+        else:
+            labels = segment_density(pts, fc.root_index).labels
+        el = time.perf_counter() - t0
+        sc = segmentation_scores(cloud.to_file_order(labels), gt.labels)
+        out[meth] = {**sc.as_dict(), "time": el}
+    return out
+
+
+def table(rows, methods, title):
+    lines = [title,
+             f"{'Method':<22}" + "".join(f"{h:>16}" for h in ["Acc", "mIoU", "mF1", "PQ", "Time (s)"]),
+             f"{'':<22}" + "".join(f"{'Mean':>9}{'Std':>7}" for _ in METRICS)]
+    summary = {}
+    for meth in methods:
+        vals = {m: np.array([r[meth][m] for r in rows]) for m in METRICS}
+        summary[meth] = {m: {"mean": float(v.mean()), "std": float(v.std())} for m, v in vals.items()}
+        cells = []
+        for m in METRICS:
+            f = "{:9.3f}{:7.3f}" if m == "time" else "{:9.2f}{:7.2f}"
+            cells.append(f.format(vals[m].mean(), vals[m].std()))
+        label = {"ours": "Ours (heat geodesics)", "baseline": "Euclidean Density"}[meth]
+        lines.append(f"{label:<22}" + "".join(cells))
+    return "\n".join(lines), summary
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--gaussians", type=int, default=100_000)
+    ap.add_argument("--only", nargs="*", help="plant names from samples.benchmark_suite()")
+    ap.add_argument("--methods", nargs="*", default=["ours", "baseline"])
+    ap.add_argument("--out", default=str(ROOT / "benchmarks/results/segmentation.json"))
+    args = ap.parse_args(argv)
+    from samples.generate import benchmark_suite
+
+    suite = [s for s in benchmark_suite(args.gaussians) if not args.only or s[0] in args.only]
+    rows = []
+    for name, spec, seed in suite:
+        r = run_one(name, spec, seed, args.methods)
+        rows.append(r)
+        print(f"{name:<20} {r['category']:<10} L={r['leaves']:<3}" + "  ".join(
+            f"{m}: Acc {r[m]['acc']:6.2f} mIoU {r[m]['miou']:6.2f} PQ {r[m]['pq']:6.2f} "
+            f"({r[m]['n_pred'] - 1}/{r['leaves']} leaves) {r[m]['time']:.2f}s" for m in args.methods),
+            flush=True)
+    groups = {"paper elliptic set (6 presets)": [r for r in rows if r["name"] in PAPER_ELLIPTIC]}
+    for cat in ["elliptic", "lobed", "long-thin", "other", "overlap"]:
+        groups[f"{cat} plants"] = [r for r in rows if r["category"] == cat]
+    groups["all plants"] = rows
+    result = {"gaussians": args.gaussians, "params": SegmentParams().__dict__, "plants": rows,
+              "groups": {}}
+    print()
+    for title, rs in groups.items():
+        if not rs:
+            continue
+        text, summ = table(rs, args.methods, f"== {title}: {', '.join(r['name'] for r in rs)}")
+        print(text + "\n")
+        result["groups"][title] = {"plants": [r["name"] for r in rs], **summ}
+    times = np.array([r["ours"]["time"] for r in rows]) if "ours" in args.methods else np.zeros(0)
+    if len(times):
+        print(f"ours: median time {np.median(times):.3f} s per plant ({args.gaussians} Gaussians)")
+        result["ours_median_time"] = float(np.median(times))
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=1))
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
