@@ -127,7 +127,7 @@ PRESETS: dict[str, dict] = {
                         palette=(0.22, 0.40, 0.13), glossy=0.2, petiole_ratio=0.75,
                         leaf_length=0.11, serration=0.012),
     "lucky_bamboo": dict(kind="thin", shape="linear", leaves=11, habit="cane", height=0.45,
-                         palette=(0.25, 0.50, 0.12), glossy=0.6, petiole_ratio=0.1,
+                         palette=(0.25, 0.50, 0.12), glossy=0.6, petiole_ratio=0.15,
                          leaf_length=0.19),
     "golden_pothos": dict(kind="cordate", shape="cordate", leaves=5, habit="shrub", height=0.35,
                           palette=(0.24, 0.45, 0.10), glossy=0.7, petiole_ratio=0.7,
@@ -179,7 +179,8 @@ class GroundTruth:
         leaf j at row j-1
     leaf_node : (L, 3) float64, where the leaf's petiole leaves its stem axis
     overlap_pairs : (P, 2) int32, leaf label pairs built to touch/overlap (empty if none)
-    overlap_types : (P,) str-coded int32: 1 touching, 2 vertical, 3 horizontal
+    overlap_types : (P,) int32: 1 touching, 2 vertical, 3 horizontal
+    overlap_gaps : (P,) float64, smallest distance between the pair's GT blade meshes, input units
     canonical_to_input : (4, 4) float64 similarity, canonical (metres, root at 0, +Z up) -> input
     spec : JSON string: {"spec": PlantSpec fields, "seed": int, "leaves": per-leaf info}
     """
@@ -198,6 +199,7 @@ class GroundTruth:
     leaf_node: np.ndarray
     overlap_pairs: np.ndarray
     overlap_types: np.ndarray
+    overlap_gaps: np.ndarray
     canonical_to_input: np.ndarray
     spec: str
 
@@ -396,7 +398,7 @@ def _build(spec: PlantSpec, rng: np.random.Generator):
         r0 = float(rng.uniform(0.007, 0.011))
     else:
         stem_h = H * float(rng.uniform(0.55, 0.8))
-        r0 = float(rng.uniform(0.004, 0.008)) * (H / 0.6) ** 0.5
+        r0 = float(rng.uniform(0.003, 0.006)) * (H / 0.6) ** 0.5
     lean = rng.normal(0, 0.12 if habit != "cane" else 0.05, 2)
     main = _curve([0, 0, 0], [lean[0], lean[1], 1.0], stem_h, rng, k=32, wobble=0.05,
                   up_pull=0.1)
@@ -440,9 +442,9 @@ def _build(spec: PlantSpec, rng: np.random.Generator):
 
     for k in br_leaves:
         t0 = float(rng.uniform(0.25, 0.6)) if habit != "cane" else float(rng.uniform(0.2, 0.7))
-        ln = H * float(rng.uniform(0.25, 0.45))
+        ln = H * float(rng.uniform(0.15, 0.35))
         a = add_axis(t0, ln, float(rng.uniform(0.5, 1.0)), float(rng.uniform(0, 2 * np.pi)), 0.6)
-        slots += [(a, float(t)) for t in np.linspace(0.45, 1.0, k)]
+        slots += [(a, float(t)) for t in np.linspace(0.3, 1.0, k)]
     for k in shoot_leaves:
         t0 = float(rng.uniform(0.3, 0.9))
         ln = float(rng.uniform(0.03, 0.08))
@@ -491,9 +493,10 @@ def _build(spec: PlantSpec, rng: np.random.Generator):
         pl.node = p
         pal = np.array(spec.palette if spec.palette is not None else kd[3])
         front = np.clip(pal * np.exp(rng.normal(0, 0.08, 3)) * float(np.exp(rng.normal(0, 0.1))), 0, 1)
-        back = np.clip(0.55 * front + 0.45 * np.array([0.55, 0.65, 0.45]) * (0.7 + 0.6 * front.mean()), 0, 1)
+        # the abaxial side: lighter, duller, a little grey-blue
+        back = np.clip(0.5 * front + 0.5 * np.array([0.50, 0.60, 0.45]) * (0.8 + front.mean()), 0, 1)
         width = float(np.ptp(outline.poly[:, 1])) * length
-        pet_r = float(np.clip(width * rng.uniform(0.04, 0.07), 0.0012, 0.004))
+        pet_r = float(np.clip(width * rng.uniform(0.025, 0.045), 0.001, 0.0035))
         leaves.append(_Leaf(sheet=sheet, place=pl, label=j + 1, colour_front=front,
                             colour_back=back, density=float(np.exp(rng.normal(0, 0.25))),
                             back_fraction=float(rng.uniform(0.25, 0.5)),
@@ -522,17 +525,16 @@ def _place_pairs(leaves: list[_Leaf], axes, spec: PlantSpec, rng) -> list[tuple[
     cands = [(order[i], order[i + 1]) for i in range(len(order) - 1)
              if leaves[order[i]].place.axis == leaves[order[i + 1]].place.axis]
     rng.shuffle(cands)
-    used, pairs = set(), []
-    for a, b in cands:
-        if len(pairs) >= n_pairs:
-            break
-        if a in used or b in used:
-            continue
-        used |= {a, b}
-        pairs.append((a, b, types[len(pairs) % len(types)]))
     out = []
-    for a, b, ty in pairs:
+    fixed: list[int] = []
+    for a, b in cands:
+        if len(out) >= n_pairs:
+            break
+        if a in fixed or b in fixed:
+            continue
+        ty = types[len(out) % len(types)]
         A, B = leaves[a], leaves[b]
+        saved = dataclasses.replace(B.place)
         # B's blade: same size class as A so they can stack
         tree = cKDTree(A.world())
         pa, pb = A.place, B.place
@@ -574,7 +576,10 @@ def _place_pairs(leaves: list[_Leaf], axes, spec: PlantSpec, rng) -> list[tuple[
         if f(hi) < gap:
             hi = 2.5
         if f(lo) > gap:
-            f(lo)
+            lo = -1.0 if ty != 1 else lo
+        if f(lo) > gap:
+            B.place = saved  # cannot bring the blades together from here: not a pair
+            continue
         else:
             for _ in range(30):
                 mid = 0.5 * (lo + hi)
@@ -583,43 +588,72 @@ def _place_pairs(leaves: list[_Leaf], axes, spec: PlantSpec, rng) -> list[tuple[
                 else:
                     lo = mid
             f(hi)
+        # B must not run into an earlier pair's blades (that would be an unplanned overlap)
+        wa, wb = A.world(), B.world()
+        if any(min(_min_dist(wb, cKDTree(leaves[k].world())), _min_dist(wa, cKDTree(leaves[k].world())))
+               < 0.006 for k in fixed):
+            B.place = saved
+            continue
+        fixed += [a, b]
         out.append((A.label, B.label, ty))
     return out
 
 
-def _avoid_collisions(leaves: list[_Leaf], pairs, rng, min_gap=0.006, tries=12):
-    """Re-orient leaves that come closer than ``min_gap`` to an earlier leaf (not a built pair)."""
-    partner = {}
+def _avoid_collisions(leaves: list[_Leaf], axes: list[Axis], pairs, rng, min_gap=0.006,
+                      tries=16, passes=3):
+    """Re-pose leaves closer than ``min_gap`` to another blade (built pairs excepted) or a stem.
+
+    Leaves of built overlap pairs keep their pose; the others get new azimuth/elevations (the
+    best of ``tries`` random re-poses is kept). Several passes, since moving one leaf can
+    bring it close to a later one.
+    """
+    partner: dict[int, set] = {}
     for a, b, _ in pairs:
         partner.setdefault(a, set()).add(b)
         partner.setdefault(b, set()).add(a)
-    fixed = {b for _, b, _ in pairs} | {a for a, _, _ in pairs}
-    placed: list[int] = []
-    worlds: dict[int, np.ndarray] = {}
-    for i, leaf in enumerate(leaves):
-        def clearance():
-            w = leaf.world()
-            others = [worlds[k] for k in placed if leaves[k].label not in partner.get(leaf.label, ())]
-            if not others:
-                return np.inf, w
-            return _min_dist(w[::3], cKDTree(np.vstack(others))), w
-        d, w = clearance()
-        if d < min_gap and leaf.label not in fixed:
-            best = (d, leaf.place.az, leaf.place.el_blade, leaf.place.el_pet)
-            az0, eb0, ep0 = leaf.place.az, leaf.place.el_blade, leaf.place.el_pet
+    fixed = set(partner)
+    stem_pts = np.vstack([a.pts for a in axes])
+    stem_r = np.concatenate([a.radius for a in axes])
+    stem_tree = cKDTree(stem_pts)
+    worlds = [lf.world() for lf in leaves]
+    trees = [cKDTree(w[::2]) for w in worlds]
+
+    def clearance(i, w):
+        d = np.inf
+        for k in range(len(leaves)):
+            if k == i or leaves[k].label in partner.get(leaves[i].label, ()):
+                continue
+            d = min(d, float(trees[k].query(w[::3], k=1, distance_upper_bound=min_gap * 4)[0].min()))
+        # blades must also clear the stems (but may start right at their own node)
+        far = np.linalg.norm(w - leaves[i].place.node, axis=1) > 0.03
+        if far.any():
+            dd, ii = stem_tree.query(w[far][::3], k=1)
+            d = min(d, float((dd - stem_r[ii]).min()))
+        return d
+
+    for _ in range(passes):
+        moved = False
+        for i, leaf in enumerate(leaves):
+            if leaf.label in fixed or clearance(i, worlds[i]) >= min_gap:
+                continue
+            pl = leaf.place
+            az0, eb0, ep0 = pl.az, pl.el_blade, pl.el_pet
+            best = (clearance(i, worlds[i]), az0, eb0, ep0)
             for _ in range(tries):
-                leaf.place.az = az0 + rng.normal(0, 0.6)
-                leaf.place.el_blade = eb0 + rng.normal(0, 0.25)
-                leaf.place.el_pet = ep0 + rng.normal(0, 0.15)
-                d, w = clearance()
+                pl.az = az0 + rng.normal(0, 0.7)
+                pl.el_blade = eb0 + rng.normal(0, 0.25)
+                pl.el_pet = float(np.clip(ep0 + rng.normal(0, 0.15), -0.2, 1.45))
+                d = clearance(i, leaf.world())
                 if d > best[0]:
-                    best = (d, leaf.place.az, leaf.place.el_blade, leaf.place.el_pet)
+                    best = (d, pl.az, pl.el_blade, pl.el_pet)
                 if d >= min_gap:
                     break
-            _, leaf.place.az, leaf.place.el_blade, leaf.place.el_pet = best
-            w = leaf.world()
-        worlds[i] = w
-        placed.append(i)
+            _, pl.az, pl.el_blade, pl.el_pet = best
+            worlds[i] = leaf.world()
+            trees[i] = cKDTree(worlds[i][::2])
+            moved = True
+        if not moved:
+            break
 
 
 # ---------------------------------------------------------------------------------------------
@@ -686,7 +720,12 @@ def _sample_leaf(leaf: _Leaf, n: int, rng, glossy: float, sh_rest: int):
     total_area = float(area.sum())
     spacing = np.sqrt(2 * total_area / max(n, 1))
     local = np.sqrt(np.clip(dens[fi] / dens.mean(), 0.2, 5.0))
-    s_1 = spacing * 0.55 * np.exp(rng.normal(0, 0.35, n)) / local
+    s_1 = spacing * 0.7 * np.exp(rng.normal(0, 0.35, n)) / local
+    # keep splats inside the outline: no in-plane scale beyond ~0.6x the distance to the margin
+    # (measured along the polar ray), so blade silhouettes stay crisp as in real captures
+    ray = np.linalg.norm(np.einsum("nk,nkd->nd", b, sh.uv2d[tri]) - sh.outline.centre, axis=1)
+    d_edge = (1.0 - rad) / np.maximum(rad, 1e-3) * ray * sh.params.length
+    s_1 = np.minimum(s_1, np.maximum(0.6 * d_edge, 0.2 * spacing))
     s_2 = s_1 * rng.uniform(0.3, 1.0, n) * (0.6 if parallel else 1.0)
     s_3 = s_1 * rng.uniform(0.02, 0.1, n)
     scales = np.stack([s_1, s_2, s_3], 1)
@@ -694,8 +733,8 @@ def _sample_leaf(leaf: _Leaf, n: int, rng, glossy: float, sh_rest: int):
     veins = vein_field(sh.outline, xy, leaf.vein_phase, leaf.n_secondary)
     mott = 0.07 * _smooth_noise(xy, rng, 6, 0.35)
     front = leaf.colour_front[None, :] * (1 + mott[:, None])
-    vein_f = np.clip(leaf.colour_front * 1.45 + np.array([0.06, 0.06, 0.0]), 0, 1)
-    front = front + 0.55 * veins[:, None] * (vein_f - front)
+    vein_f = np.clip(leaf.colour_front * 1.6 + np.array([0.08, 0.09, 0.02]), 0, 1)
+    front = front + 0.7 * veins[:, None] * (vein_f - front)
     edge = np.clip((rad - 0.93) / 0.07, 0, 1)[:, None]
     front = front + 0.25 * edge * (np.array([0.45, 0.42, 0.12]) - front)
     bk = leaf.colour_back[None, :] * (1 + 0.6 * mott[:, None])
@@ -716,8 +755,11 @@ def _tube_frames(t):
     return e1, e2
 
 
-def _sample_tube(axis: Axis, n: int, rng, colour, jitter=0.0003):
-    """Gaussians on a tube's surface, elongated along the centreline."""
+def _sample_tube(axis: Axis, n: int, rng, colour, colour_end=None, jitter=0.0003):
+    """Gaussians on a tube's surface, elongated along the centreline.
+
+    colour : RGB at the start of the tube, blending to ``colour_end`` (if given) at its end.
+    """
     if n <= 0:
         return None
     r_mid = 0.5 * (axis.radius[1:] + axis.radius[:-1])
@@ -736,12 +778,16 @@ def _sample_tube(axis: Axis, n: int, rng, colour, jitter=0.0003):
     pos = c + (r + rng.normal(0, jitter, n))[:, None] * radial
     area = 2 * np.pi * float(w.sum())
     spacing = np.sqrt(area / n)
-    s_around = np.minimum(spacing * 0.6, r * 0.9) * np.exp(rng.normal(0, 0.3, n))
+    s_around = np.minimum(spacing * 0.6, r * 0.45) * np.exp(rng.normal(0, 0.3, n))
     s_along = s_around * rng.uniform(1.8, 4.0, n)
     s_rad = s_around * rng.uniform(0.05, 0.2, n)
     R = np.stack([tan, around, radial], 2)
     shade = 0.75 + 0.5 * np.clip(radial[:, 2], -0.5, 1.0)[:, None] * 0.4
-    col = np.clip(colour[None, :] * shade * np.exp(rng.normal(0, 0.07, (n, 1)))
+    base = np.asarray(colour, float)[None, :]
+    if colour_end is not None:
+        along = ((axis.s[si] + u * seg[si]) / max(axis.length, 1e-12))[:, None]
+        base = base + np.clip(along * 1.4, 0, 1) * (np.asarray(colour_end, float) - base)
+    col = np.clip(base * shade * np.exp(rng.normal(0, 0.07, (n, 1)))
                   + rng.normal(0, 0.015, (n, 3)), 0.003, 0.997)
     opa = np.where(rng.uniform(size=n) < 0.9, rng.uniform(0.85, 0.999, n), rng.uniform(0.1, 0.7, n))
     return pos, np.stack([s_along, s_around, s_rad], 1), R, col, opa
@@ -768,7 +814,7 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
     rng = np.random.default_rng([int(seed), 0x1EAF])
     axes, leaves, habit = _build(spec, rng)
     pairs = _place_pairs(leaves, axes, spec, rng)
-    _avoid_collisions(leaves, pairs, rng)
+    _avoid_collisions(leaves, axes, pairs, rng)
 
     # petioles: cubic Bezier from the node (on the stem surface) to the blade base,
     # leaving along (az, el_pet) and arriving along the blade's midrib direction
@@ -812,9 +858,15 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
     parts_pet = []
     stem_col = np.array(spec.palette if spec.palette is not None else _KIND_DEFAULTS[spec.kind][3])
     stem_col = np.clip(0.6 * stem_col + 0.4 * np.array([0.35, 0.3, 0.15]), 0, 1)
-    for a, c in zip(axes, cnt_t):
-        col = stem_col if a.kind == "stem" else np.clip(leaves[0].colour_front * 1.2 + 0.03, 0, 1)
-        out = _sample_tube(a, int(c), rng, col)
+    woody = np.array([0.30, 0.22, 0.13]) * float(np.exp(rng.normal(0, 0.1)))
+    for ai, (a, c) in enumerate(zip(axes, cnt_t)):
+        if a.kind == "stem":
+            # the main stem lignifies from the base; branches and shoots stay greener
+            c0, c1 = (woody if ai == 0 and habit != "rosette" else stem_col), stem_col
+        else:
+            lf = leaves[a.leaf - 1]
+            c0 = c1 = np.clip(0.7 * lf.colour_front + 0.3 * np.array([0.45, 0.5, 0.2]), 0, 1)
+        out = _sample_tube(a, int(c), rng, c0, c1)
         if out is None:
             continue
         pos, sc, R, col_, op = out
@@ -917,6 +969,8 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
         leaf_node=to_in(np.array([lf.place.node for lf in leaves])),
         overlap_pairs=np.array([(a, b) for a, b, _ in pairs], np.int32).reshape(-1, 2),
         overlap_types=np.array([t for _, _, t in pairs], np.int32),
+        overlap_gaps=np.array([_min_dist(leaves[b - 1].world(), cKDTree(leaves[a - 1].world())) * sg
+                               for a, b, _ in pairs], np.float64),
         canonical_to_input=M,
         spec=json.dumps({"spec": spec.to_dict(), "seed": int(seed), "habit": habit,
                          "canonical_height_m": height / sg, "leaves": info}),

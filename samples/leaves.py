@@ -30,12 +30,13 @@ SHAPES: dict[str, dict] = {
     "linear": dict(family="width", W=0.065, a=0.28, b=0.75, venation="parallel", tip=0.08),
     "grass": dict(family="width", W=0.035, a=0.2, b=0.9, venation="parallel"),
     "cordate": dict(family="cordate", W=0.75, notch=0.55, tip=0.35, venation="palmate"),
-    "cotton_rose": dict(family="palmate", lobes=5, spread=2.2, lengths=(1.0, 0.8, 0.45),
-                        sinus=0.55, pointed=0.8, venation="palmate", base_notch=0.45),
-    "maple": dict(family="palmate", lobes=5, spread=2.45, lengths=(1.0, 0.92, 0.55),
-                  sinus=0.3, pointed=1.3, venation="palmate", base_notch=0.2),
-    "trilobed": dict(family="palmate", lobes=3, spread=1.7, lengths=(1.0, 0.75),
-                     sinus=0.45, pointed=1.0, venation="palmate", base_notch=0.3),
+    "cotton_rose": dict(family="palmate", lobes=5, spread=2.3, lengths=(1.0, 0.85, 0.55),
+                        sinus=0.68, q=1.9, tip=0.06, lobe_width=0.9, venation="palmate",
+                        base_notch=0.35),
+    "maple": dict(family="palmate", lobes=5, spread=2.5, lengths=(1.0, 0.92, 0.5),
+                  sinus=0.3, q=1.25, tip=0.1, lobe_width=0.72, venation="palmate", base_notch=0.15),
+    "trilobed": dict(family="palmate", lobes=3, spread=1.5, lengths=(1.0, 0.7),
+                     sinus=0.5, q=1.6, tip=0.08, lobe_width=0.75, venation="palmate", base_notch=0.3),
 }
 
 #: Shapes a plant ``kind`` draws from (weights implicit: uniform).
@@ -130,17 +131,16 @@ def make_outline(shape: str, rng: np.random.Generator, serration: float = 0.0,
         lens = np.array([_jit(rng, L, 0.08 * v) for L in lens])
         lens[0] = max(lens[0], lens[1:].max() * 1.02)
         angles = angles + rng.normal(0, 0.05 * v, len(angles)) * (np.arange(len(angles)) > 0)
-        width = _jit(rng, spread / half * 0.62, 0.08 * v)
+        width = _jit(rng, spread / half * p["lobe_width"], 0.08 * v)
         sinus = np.clip(_jit(rng, p["sinus"], 0.1 * v), 0.15, 0.85)
-        pointed = p["pointed"]
+        q = p["q"]
         th = np.linspace(-np.pi, np.pi, 2400, endpoint=False)
         bump = np.zeros_like(th)
         for ang, L in zip(angles, lens):
             d = np.abs(np.angle(np.exp(1j * (th - ang)))) / width
-            f = np.clip(1 - d, 0, None) ** pointed
+            f = np.clip(1 - d ** q, 0, None) + p["tip"] * np.exp(-(d / 0.1) ** 2)
             bump = np.maximum(bump, L * f)
-        r = sinus * lens[1:].min() * 0.9 + (1 - sinus) * bump
-        r = np.maximum(r, sinus * 0.5)
+        r = np.maximum(bump, sinus * lens[0] * (0.75 + 0.25 * np.cos(th)))
         # basal sinus: the petiole joins at theta = pi
         r *= 1 - p["base_notch"] * np.exp(-((np.pi - np.abs(th)) / 0.45) ** 2)
         pts = np.stack([r * np.cos(th), r * np.sin(th)], 1)
@@ -326,9 +326,9 @@ def vein_field(outline: Outline, xy: np.ndarray, rng_phase: float, n_secondary: 
             v = np.maximum(v, np.exp(-(dist / 0.01) ** 2) * np.exp(-r / 1.2))
         sec = 0.5 + 0.5 * np.cos(2 * np.pi * n_secondary * r + 3 * th + rng_phase)
         return np.clip(v + 0.25 * sec ** 12, 0, 1)
-    mid = np.exp(-(y / 0.008) ** 2) * (x > -0.01) * (x < 0.97)
+    mid = np.exp(-(y / 0.012) ** 2) * (x > -0.01) * (x < 0.97)
     k = 0.9  # secondary veins run outward and towards the apex
     phase = (x - k * np.abs(y)) * n_secondary + rng_phase
     d = np.abs(np.mod(phase, 1.0) - 0.5) / n_secondary
-    sec = np.exp(-(d / 0.006) ** 2) * np.clip(np.abs(y) / 0.03, 0, 1)
-    return np.clip(mid + 0.45 * sec, 0, 1)
+    sec = np.exp(-(d / 0.008) ** 2) * np.clip(np.abs(y) / 0.03, 0, 1)
+    return np.clip(mid + 0.6 * sec, 0, 1)

@@ -98,6 +98,18 @@ def test_ground_truth_consistent(small):
     assert len(gt.overlap_pairs) >= 2  # "all" builds one pair of each type when it can
 
 
+def test_overlap_pairs_are_built_close():
+    """Hard plants: each requested overlap type is built, its blades a few mm apart (not crossing)."""
+    for overlap, types in [("touching", {1}), ("vertical", {2}), ("horizontal", {3})]:
+        cloud, gt = make_plant(PlantSpec(kind="elliptic", leaves=8, gaussians=8000, overlap=overlap), seed=3)
+        assert set(gt.overlap_types.tolist()) == types
+        assert gt.overlap_pairs.shape == (len(gt.overlap_types), 2)
+        gaps_mm = gt.overlap_gaps / gt.scale * 1000
+        assert np.all(gaps_mm > 0.3) and np.all(gaps_mm < 7.0), gaps_mm
+    _, gt = make_plant(PlantSpec(kind="elliptic", leaves=8, gaussians=8000), seed=3)
+    assert len(gt.overlap_pairs) == 0
+
+
 def test_leaf_gaussians_lie_on_their_gt_mesh(small):
     cloud, gt = small
     assert _mesh_distance(cloud, gt, np.random.default_rng(0)) < MESH_DIST_REL
@@ -132,18 +144,18 @@ def _blade_width(points: np.ndarray) -> float:
 
 @pytest.mark.parametrize("name", ["rubber_tree", "cotton_rose", "lucky_bamboo"])
 def test_petiole_narrower_than_blade(name):
-    spec = preset(name, gaussians=30_000)
+    spec = preset(name, gaussians=50_000)
     cloud, gt = make_plant(spec, seed=1)
     checked = 0
     for j in range(1, gt.n_leaves + 1):
         pet = cloud.means[gt.petiole_of == j].astype(np.float64)
-        if len(pet) < 40:
+        if len(pet) < 30:
             continue  # very short petiole (sheath): nothing to measure
         d = _petiole_diameter(pet)
         w = _blade_width(cloud.means[gt.labels == j].astype(np.float64))
         assert 0 < d < PETIOLE_WIDTH_REL * w, (j, d, w)
         checked += 1
-    assert checked >= gt.n_leaves // 2
+    assert checked >= gt.n_leaves // 3
 
 
 def test_benchmark_suite_covers_the_classes():
