@@ -65,9 +65,13 @@ def read_stage(path) -> PlantAsset:
 
     Raises InputFileError if the file is unreadable or not a LeafFit plant.
     """
+    return read_stage_object(open_stage(path), path)
+
+
+def read_stage_object(stage, path="<stage>") -> PlantAsset:
+    """Like :func:`read_stage` for an already opened ``pxr.Usd.Stage`` (edits included)."""
     from pxr import UsdGeom, UsdShade
 
-    stage = open_stage(path)
     inst_prim = find_instancer(stage)
     if inst_prim is None:
         raise InputFileError(path, "not a LeafFit plant (no PointInstancer with "
@@ -175,3 +179,33 @@ def _material_texture(material) -> str:
             v = f.Get() if f else None
             return v.path if v is not None else ""
     return ""
+
+
+def read_texture(stage, asset_path: str) -> np.ndarray | None:
+    """Decode a texture referenced by the stage (also inside a .usdz) -> (H, W, C) uint8, or None."""
+    import os
+    import tempfile
+
+    import OpenImageIO as oiio
+    from pxr import Ar
+
+    if not asset_path:
+        return None
+    layer = stage.GetRootLayer()
+    resolved = Ar.GetResolver().Resolve(layer.ComputeAbsolutePath(asset_path))
+    if not resolved:
+        return None
+    asset = Ar.GetResolver().OpenAsset(resolved)
+    if asset is None:
+        return None
+    data = bytes(asset.GetBuffer())
+    suffix = Path(asset_path).suffix
+    fd, tmp = tempfile.mkstemp(suffix=suffix)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        buf = oiio.ImageBuf(tmp)
+        img = buf.get_pixels(oiio.UINT8)
+        return None if img is None or img.size == 0 else np.ascontiguousarray(img)
+    finally:
+        os.unlink(tmp)

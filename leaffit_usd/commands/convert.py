@@ -1,0 +1,120 @@
+"""``leaffit-usd convert INPUT -o OUT.usda|usdc|usdz``: the whole pipeline."""
+from __future__ import annotations
+
+import json
+
+NAME = "convert"
+HELP = "convert a 3DGS plant capture (.ply / USD splats) into a LeafFit USD asset"
+DESCRIPTION = """Run the whole LeafFit pipeline: load -> frame (up axis, root) -> segment leaves
+-> fit the template leaf to every leaf (MLS) -> template mesh + textures + stem -> USD stage.
+
+Outputs .usda / .usdc (textures in textures/ and the baked-leaves payload beside the stage) or
+.usdz (everything packed). Paper defaults; every parameter is in working units (root at the
+origin, up +Z, plant height 1). A failed conversion leaves no output behind.
+
+examples:
+  leaffit-usd convert plant.ply -o plant.usda
+  leaffit-usd convert plant.ply -o plant.usdz --height 0.45 --up +y --report report.json
+  leaffit-usd convert plant.ply -o plant.usdc --labels labels.npz -K 16 --steps 100"""
+ORDER = 10
+
+
+def _pos_int(text):
+    import argparse
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v}")
+    return v
+
+
+def _pos_float(text):
+    import argparse
+    import math
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
+    return v
+
+
+def add_arguments(p) -> None:
+    p.add_argument("input", metavar="INPUT", help="3DGS capture: INRIA .ply or USD ParticleField3DGaussianSplat")
+    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output stage (.usda, .usdc, .usd or .usdz)")
+    p.add_argument("--report", metavar="R.json", help="write timings, counts, sizes and fit errors as JSON")
+    g = p.add_argument_group("frame")
+    g.add_argument("--up", default="auto", help="the plant's up direction in the input: auto (default), +x, -y, z, or X,Y,Z")
+    g.add_argument("--root", default="auto", help="root: auto (lowest point along up) or X,Y,Z in the input frame")
+    g.add_argument("--root-index", type=_pos_int, default=None, metavar="I", help="root Gaussian's index in the input file")
+    g = p.add_argument_group("segmentation (paper defaults)")
+    g.add_argument("--labels", metavar="L.npz", help="reuse a segmentation: .npz with 'labels' (int per input Gaussian, file order, 0 = stem)")
+    g.add_argument("--edits", metavar="EDITS.json", help="replay manual edits recorded by 'leaffit-usd edit'")
+    g.add_argument("--n-samples", type=_pos_int, help="N_s, FPS samples of the geodesic graph (8192)")
+    g.add_argument("--n-neighbors", type=_pos_int, help="N_k, neighbours per sample (512)")
+    g.add_argument("--tau", type=_pos_float, help="tau, apex grouping threshold (0.5)")
+    g.add_argument("--delta", type=_pos_float, help="delta (0.01)")
+    g.add_argument("--epsilon", type=_pos_float, help="epsilon (0.05)")
+    g.add_argument("--rho", type=_pos_float, help="rho (0.25)")
+    g = p.add_argument_group("fit (paper defaults)")
+    g.add_argument("--template", default=None, metavar="ID|auto", help="template leaf: auto (default) or a leaf label")
+    g.add_argument("-K", type=_pos_int, default=None, help="control points per leaf (32)")
+    g.add_argument("--steps", type=_pos_int, default=None, help="optimisation steps (200)")
+    g.add_argument("--lr", type=_pos_float, default=None, help="learning rate (7e-3)")
+    g.add_argument("--lam", type=float, default=None, help="Chamfer weight lambda (0.7)")
+    g.add_argument("--sigma", type=_pos_float, default=None, help="MLS kernel width sigma (0.1)")
+    g.add_argument("--no-optimize", action="store_true", help="initial correspondence only (ablation)")
+    g.add_argument("--seed", type=_pos_int, default=None, help="random seed (0)")
+    g = p.add_argument_group("mesh")
+    g.add_argument("--vertex-budget", type=_pos_int, default=None, help="template sheet vertices (2048)")
+    g.add_argument("--bake-size", type=_pos_int, default=None, help="resolution the textures are baked at (1024)")
+    g = p.add_argument_group("output")
+    g.add_argument("--up-axis", choices=["Y", "Z", "y", "z"], default="Y", help="the stage's upAxis (Y)")
+    g.add_argument("--meters-per-unit", type=_pos_float, default=1.0, help="the stage's metersPerUnit (1)")
+    g.add_argument("--height", type=_pos_float, default=None, metavar="M",
+                   help="real plant height in metres (default: keep the capture's units)")
+    g.add_argument("--texture-format", choices=["jpg", "png"], default="jpg",
+                   help="jpg (compact, default) or png (keeps alpha)")
+    g.add_argument("--texture-size", type=_pos_int, default=1024, help="longest side of the written textures (1024)")
+    g.add_argument("--no-baked", action="store_true", help="do not write the baked-leaves payload")
+
+
+def options_from_args(args):
+    from leaffit_usd.pipeline import ConvertOptions
+
+    seg = {k: getattr(args, k) for k in ("n_samples", "n_neighbors", "tau", "delta", "epsilon", "rho")
+           if getattr(args, k) is not None}
+    fit = {k: v for k, v in (("K", args.K), ("steps", args.steps), ("lr", args.lr), ("lam", args.lam),
+                             ("sigma", args.sigma), ("seed", args.seed)) if v is not None}
+    if args.template is not None:
+        t = str(args.template).strip()
+        fit["template"] = int(t) if t.isdigit() else t
+    if args.no_optimize:
+        fit["optimize"] = False
+    mesh = {k: v for k, v in (("vertex_budget", args.vertex_budget), ("texture_size", args.bake_size))
+            if v is not None}
+    return ConvertOptions(
+        up=args.up, root=args.root, root_index=args.root_index, labels=args.labels, edits=args.edits,
+        segment=seg, fit=fit, mesh=mesh, up_axis=args.up_axis.upper(),
+        meters_per_unit=args.meters_per_unit, height_m=args.height,
+        texture_format=args.texture_format, texture_size=args.texture_size, baked=not args.no_baked)
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from leaffit_usd.errors import InputFileError, ParameterError
+    from leaffit_usd.io_util import atomic_write_bytes
+    from leaffit_usd.pipeline import convert
+
+    if not Path(args.input).is_file():
+        raise InputFileError(args.input, "no such file")
+    if args.report and Path(args.report).suffix.lower() != ".json":
+        raise ParameterError("--report", "a .json path", args.report)
+    report = convert(args.input, args.output, options_from_args(args))
+    if args.report:
+        atomic_write_bytes(args.report, (json.dumps(report, indent=2) + "\n").encode())
+    return 0

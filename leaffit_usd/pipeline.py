@@ -1,0 +1,295 @@
+"""``convert``: 3DGS capture -> LeafFit USD asset, the whole pipeline in one call.
+
+    load_cloud -> make_frame (up, root) -> transform_cloud (working frame)
+      -> segment_plant  (or --labels L.npz, then --edits E.json)
+      -> fit_leaves -> build_template_mesh + build_stem
+      -> asset_from_results (working -> asset frame) -> write_stage (atomic)
+
+Each stage is the function named in TEAM.md; this module only wires them, times them, logs
+progress on stderr (logger ``leaffit_usd``) and returns a report (JSON-compatible dict: timings,
+counts, sizes, fit errors). Nothing is written unless every stage succeeded: the stage file and
+its sidecars are written atomically by ``usd.writer.write_stage`` as the last step.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from leaffit_usd import __version__
+from leaffit_usd.errors import InputFileError, ParameterError
+
+log = logging.getLogger("leaffit_usd")
+
+
+@dataclass
+class ConvertOptions:
+    """Options of :func:`convert` (paper defaults everywhere; working units).
+
+    up : "auto" or an axis/vector for ``splats.frame.parse_up`` (input frame)
+    root : "auto" or "X,Y,Z" (input frame); root_index : a Gaussian's index in the input file
+    labels : path of a segmentation .npz (``labels`` int32 per input Gaussian, file order) to use
+        instead of the automatic segmentation; edits : an edits.json replayed on the labels
+    segment, fit, mesh, stem : overrides of ``SegmentParams``, ``FitParams``, ``MeshParams``,
+        ``StemParams`` fields (e.g. ``fit={"K": 16, "steps": 100}``)
+    up_axis : the stage's up axis, "Y" or "Z"; meters_per_unit; height_m : real plant height
+    texture_format : "jpg" | "png"; texture_size : longest side of the written textures
+    baked : also write the baked-leaves payload (variant leafRepresentation = baked)
+    sheet_offset : front/back sheet separation, fraction of the template's extent
+    """
+
+    up: str | None = "auto"
+    root: str | None = "auto"
+    root_index: int | None = None
+    labels: str | None = None
+    edits: str | None = None
+    segment: dict = field(default_factory=dict)
+    fit: dict = field(default_factory=dict)
+    mesh: dict = field(default_factory=dict)
+    stem: dict = field(default_factory=dict)
+    up_axis: str = "Y"
+    meters_per_unit: float = 1.0
+    height_m: float | None = None
+    texture_format: str = "jpg"
+    texture_size: int = 1024
+    baked: bool = True
+    sheet_offset: float | None = None
+
+
+def _params(cls, overrides: dict, flag: str):
+    """Instantiate a parameter dataclass with overrides; unknown names are a ParameterError."""
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = set(overrides) - names
+    if unknown:
+        raise ParameterError(flag, f"parameters among {sorted(names)}", sorted(unknown))
+    p = cls(**overrides)
+    if hasattr(p, "validate"):
+        p.validate()
+    return p
+
+
+def _to_dict(p) -> dict:
+    if hasattr(p, "to_dict"):
+        return p.to_dict()
+    return dataclasses.asdict(p) if dataclasses.is_dataclass(p) else dict(p)
+
+
+class _Timer:
+    """Per-stage wall-clock timings with numbered progress lines on stderr."""
+
+    def __init__(self, n_stages: int):
+        self.n, self.i, self.timings = n_stages, 0, {}
+
+    def stage(self, name: str, what: str):
+        timer = self
+
+        class _Ctx:
+            def __enter__(self):
+                timer.i += 1
+                log.info("[%d/%d] %s ...", timer.i, timer.n, what)
+                self.t0 = time.perf_counter()
+
+            def __exit__(self, exc_type, exc, tb):
+                dt = time.perf_counter() - self.t0
+                timer.timings[name] = round(dt, 4)
+                if exc_type is None:
+                    log.info("[%d/%d] %s done in %.2f s", timer.i, timer.n, what, dt)
+                return False
+
+        return _Ctx()
+
+
+def load_labels(path, cloud) -> np.ndarray:
+    """Labels from a segmentation .npz (file order) -> (N,) int32 in cloud order.
+
+    Only the ``labels`` array is required (one per Gaussian of the input FILE; 0 = stem;
+    negative values, e.g. -1 = noise, count as unassigned).
+    Raises InputFileError for a missing/malformed file or a count that does not match.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputFileError(p, "no such file")
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            if "labels" not in z.files:
+                raise InputFileError(p, f"no 'labels' array (found {', '.join(z.files) or 'nothing'})")
+            labels = np.asarray(z["labels"])
+    except InputFileError:
+        raise
+    except Exception as e:  # noqa: BLE001 - any unreadable npz is the user's file
+        raise InputFileError(p, f"not a readable .npz ({type(e).__name__}: {e})") from None
+    if labels.ndim != 1 or labels.dtype.kind not in "iu":
+        raise InputFileError(p, f"'labels' must be a 1-D integer array, is {labels.dtype} {labels.shape}")
+    if len(labels) != cloud.file_count:
+        raise InputFileError(p, f"{len(labels)} labels but the input has {cloud.file_count} Gaussians "
+                                "(one label per Gaussian, file order)")
+    out = labels[np.asarray(cloud.file_index)].astype(np.int32)
+    if out.size and out.min() < 0:  # e.g. -1 = noise in ground-truth files: treat as unassigned
+        log.info("      %d Gaussians with negative labels treated as unassigned (0)", int((out < 0).sum()))
+        out[out < 0] = 0
+    # renumber the leaves present 1..L (a hand-made file may have gaps)
+    uniq = np.unique(out[out > 0])
+    remap = np.zeros(int(out.max(initial=0)) + 1, np.int32)
+    remap[uniq] = np.arange(1, len(uniq) + 1, dtype=np.int32)
+    return remap[out]
+
+
+def _segmentation_from_labels(points_working, labels, root_index, seg_params):
+    """A Segmentation for given labels; the rootward tree (needed by the stem) is completed by
+    the segmentation module when it offers that, else it is left empty (no stem geometry)."""
+    from leaffit_usd.segment.result import Segmentation
+
+    try:
+        from leaffit_usd.segment import auto
+    except ImportError:
+        auto = None
+    for name in ("segmentation_from_labels", "complete_segmentation", "from_labels"):
+        fn = getattr(auto, name, None) if auto else None
+        if fn is not None:
+            return fn(points_working, labels, root_index, seg_params)
+    log.warning("segmentation from --labels: no rootward tree available, the stem will be empty")
+    return Segmentation(labels=labels, root_index=int(root_index))
+
+
+def convert(input_path, output_path, options: ConvertOptions | None = None) -> dict:
+    """Convert a 3DGS capture (.ply / USD splats) into a LeafFit USD stage.
+
+    Returns the report dict: ``timings`` (s per stage), ``counts``, ``sizes`` (bytes, with the
+    compression ratio input/output), ``fit`` (errors), ``outputs``, ``params``.
+    Raises UserError subclasses for bad input or options; nothing is written on failure.
+    """
+    from leaffit_usd.io_util import file_sha256
+    from leaffit_usd.splats import load_cloud
+    from leaffit_usd.splats.frame import make_frame, transform_cloud
+    from leaffit_usd.usd.assemble import DEFAULT_SHEET_OFFSET, asset_from_results
+    from leaffit_usd.usd.writer import FORMATS, LeafTextures, WriteOptions, write_stage
+
+    o = options or ConvertOptions()
+    t_start = time.perf_counter()
+    input_path, output_path = Path(input_path), Path(output_path)
+    if output_path.suffix.lower() not in FORMATS:
+        raise ParameterError("-o/--output", f"a path ending in {', '.join(FORMATS)}", str(output_path))
+    if str(o.up_axis).upper() not in ("Y", "Z"):
+        raise ParameterError("--up-axis", "Y or Z", o.up_axis)
+    if o.texture_format not in ("jpg", "png"):
+        raise ParameterError("--texture-format", "jpg or png", o.texture_format)
+    if not (np.isfinite(o.meters_per_unit) and o.meters_per_unit > 0):
+        raise ParameterError("--meters-per-unit", "a positive number", o.meters_per_unit)
+    if o.height_m is not None and not (np.isfinite(o.height_m) and o.height_m > 0):
+        raise ParameterError("--height", "a positive height in metres", o.height_m)
+    if o.labels is not None and not Path(o.labels).is_file():
+        raise InputFileError(o.labels, "no such file")
+    if o.edits is not None and not Path(o.edits).is_file():
+        raise InputFileError(o.edits, "no such file")
+
+    from leaffit_usd.fit.register import FitParams, fit_leaves
+    from leaffit_usd.mesh.stem import StemParams, build_stem
+    from leaffit_usd.mesh.template import MeshParams, build_template_mesh
+
+    fit_p = _params(FitParams, o.fit, "fit parameters")
+    mesh_p = _params(MeshParams, o.mesh, "mesh parameters")
+    stem_p = _params(StemParams, o.stem, "stem parameters")
+    seg_p = None
+    if o.labels is None:
+        from leaffit_usd.segment.auto import SegmentParams, segment_plant
+        seg_p = _params(SegmentParams, o.segment, "segmentation parameters")
+
+    T = _Timer(7)
+    with T.stage("load", f"loading {input_path.name}"):
+        cloud = load_cloud(input_path)
+        sha = file_sha256(input_path)
+        log.info("      %d Gaussians (SH degree %d)", len(cloud), cloud.sh_degree)
+    with T.stage("frame", "choosing the frame (up axis, root)"):
+        choice = make_frame(cloud, up=o.up, root=o.root, root_index=o.root_index)
+        frame, root_index = choice.frame, choice.root_index
+        cw = transform_cloud(cloud, frame.input_to_working)
+        pts = np.asarray(cw.means, np.float64)
+    with T.stage("segment", "segmenting leaves" if o.labels is None else f"reading labels {o.labels}"):
+        if o.labels is None:
+            seg = segment_plant(pts, root_index, seg_p)
+            labels = np.asarray(seg.labels, np.int32)
+        else:
+            labels = load_labels(o.labels, cloud)
+            seg = None
+        if o.edits is not None:
+            from leaffit_usd.segment.edits import apply_edits_file
+            labels = apply_edits_file(labels, cloud, o.edits, input_path)
+            seg = None
+        if seg is None:
+            seg = _segmentation_from_labels(pts, labels, root_index, seg_p)
+        n_leaves = seg.n_leaves
+        log.info("      %d leaves", n_leaves)
+        if n_leaves == 0:
+            raise InputFileError(input_path, "no leaves found (the segmentation is empty); "
+                                 "check --up/--root or pass --labels")
+    with T.stage("fit", f"fitting the template to {n_leaves} leaves (K={fit_p.K}, {fit_p.steps} steps)"):
+        fits = fit_leaves(cw, seg, fit_p)
+    with T.stage("mesh", "building the template mesh and textures"):
+        template = build_template_mesh(cw, fits, mesh_p)
+    with T.stage("stem", "building the stem"):
+        stem = build_stem(seg, pts, fits, stem_p)
+    params = {
+        "segment": _to_dict(seg_p) if seg_p is not None else {"labels": str(o.labels)},
+        "edits": None if o.edits is None else str(o.edits),
+        "fit": _to_dict(fit_p), "mesh": _to_dict(mesh_p), "stem": _to_dict(stem_p),
+        "up": o.up if isinstance(o.up, str) or o.up is None else list(map(float, o.up)),
+        "root": o.root, "root_index": o.root_index, "root_gaussian": int(cloud.file_index[root_index]),
+    }
+    with T.stage("write", f"writing {output_path}"):
+        asset = asset_from_results(
+            template, fits, stem, frame, up_axis=str(o.up_axis).upper(),
+            meters_per_unit=float(o.meters_per_unit), height_m=o.height_m,
+            sheet_offset=DEFAULT_SHEET_OFFSET if o.sheet_offset is None else float(o.sheet_offset),
+            input_sha256=sha, params=params,
+            extra_metadata={"input_name": input_path.name})
+        wopt = WriteOptions(texture_format=o.texture_format, texture_max_size=int(o.texture_size),
+                            baked=bool(o.baked))
+        result = write_stage(output_path, asset,
+                             LeafTextures(template.front_texture, template.back_texture), wopt)
+
+    in_bytes = input_path.stat().st_size
+    out_bytes = output_path.stat().st_size
+    all_bytes = result.total_bytes if output_path.suffix.lower() != ".usdz" else out_bytes
+    errors = np.asarray(fits.errors, np.float64)
+    report = {
+        "tool": "leaffit-usd", "version": __version__,
+        "input": str(input_path), "input_sha256": sha, "output": str(output_path),
+        "outputs": {k: str(v) for k, v in result.files.items()},
+        "timings": {**T.timings, "total": round(time.perf_counter() - t_start, 4)},
+        "counts": {
+            "gaussians": int(len(cloud)), "gaussians_in_file": int(cloud.file_count),
+            "leaves": int(asset.n_leaves), "K": int(asset.targets.shape[1]) if asset.n_leaves else int(fit_p.K),
+            "template_label": int(fits.template_label),
+            "template_vertices": int(len(asset.template_points)),
+            "template_faces": int(len(asset.template_faces)),
+            "stem_vertices": int(len(asset.stem_points)), "stem_faces": int(len(asset.stem_faces)),
+            "rigid_fallback_leaves": int(np.asarray(fits.fallback, bool).sum()),
+        },
+        "sizes": {
+            "input_bytes": int(in_bytes), "output_bytes": int(out_bytes),
+            "output_with_sidecars_bytes": int(all_bytes), "files": result.sizes,
+            "compression_ratio": round(in_bytes / max(all_bytes, 1), 3),
+        },
+        "fit": {
+            "chamfer_mean": float(errors.mean()) if errors.size else None,
+            "chamfer_max": float(errors.max()) if errors.size else None,
+            "per_leaf": errors.round(7).tolist(),
+            "units": "working units (plant height = 1)",
+        },
+        "frame": {**frame.to_dict(), "root_index": int(root_index)},
+        "params": asset.metadata.get("params", {}),
+        "mesh_report": _jsonable(getattr(template, "report", {})),
+    }
+    log.info("wrote %s (%d file(s), %.1f KB; input %.1f KB, ratio %.1fx) in %.1f s", output_path,
+             len(result.files), all_bytes / 1024,
+             in_bytes / 1024, report["sizes"]["compression_ratio"], report["timings"]["total"])
+    return report
+
+
+def _jsonable(v):
+    from leaffit_usd.usd.assemble import _jsonable as j
+    return j(v)
