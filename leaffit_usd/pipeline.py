@@ -138,21 +138,34 @@ def load_labels(path, cloud) -> np.ndarray:
     return remap[out]
 
 
-def _segmentation_from_labels(points_working, labels, root_index, seg_params):
-    """A Segmentation for given labels; the rootward tree (needed by the stem) is completed by
-    the segmentation module when it offers that, else it is left empty (no stem geometry)."""
-    from leaffit_usd.segment.result import Segmentation
+def _auto_segment(cloud_working, root_index, seg_params):
+    """segment_plant with the orientation-aware normals when the segmentation module offers them."""
+    from leaffit_usd.segment import auto
 
-    try:
-        from leaffit_usd.segment import auto
-    except ImportError:
-        auto = None
-    for name in ("segmentation_from_labels", "complete_segmentation", "from_labels"):
-        fn = getattr(auto, name, None) if auto else None
-        if fn is not None:
-            return fn(points_working, labels, root_index, seg_params)
-    log.warning("segmentation from --labels: no rootward tree available, the stem will be empty")
-    return Segmentation(labels=labels, root_index=int(root_index))
+    pts = np.asarray(cloud_working.means, np.float64)
+    normals = auto.working_normals(cloud_working) if hasattr(auto, "working_normals") else None
+    return auto.segment_plant(pts, root_index, seg_params, normals=normals)
+
+
+def _segmentation_from_labels(cloud_working, labels, root_index, seg_params, auto_seg=None):
+    """A Segmentation carrying given labels (from --labels / --edits).
+
+    The stem needs the rootward tree, which only the automatic segmentation builds: it is run
+    for its tree and geodesic distances, then the labels are replaced and every per-leaf field
+    that refers to its own leaf numbering (apexes, tips, bases) is cleared, so the fit derives
+    each leaf's base/tip from ``dist_root`` instead.
+    """
+    import dataclasses as dc
+
+    if auto_seg is None:
+        auto_seg = _auto_segment(cloud_working, root_index, seg_params)
+    labels = np.asarray(labels, np.int32)
+    nodes = np.asarray(auto_seg.tree_nodes, np.int64)
+    return dc.replace(auto_seg, labels=labels,
+                      apex_indices=np.zeros(0, np.int64), apex_labels=np.zeros(0, np.int32),
+                      leaf_tip=np.zeros(0, np.int64), leaf_base=np.zeros(0, np.int64),
+                      tree_leaf=labels[nodes] if len(nodes) else np.zeros(0, np.int32),
+                      params={**dict(auto_seg.params or {}), "labels_from": "file"})
 
 
 def convert(input_path, output_path, options: ConvertOptions | None = None) -> dict:
@@ -193,10 +206,8 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     fit_p = _params(FitParams, o.fit, "fit parameters")
     mesh_p = _params(MeshParams, o.mesh, "mesh parameters")
     stem_p = _params(StemParams, o.stem, "stem parameters")
-    seg_p = None
-    if o.labels is None:
-        from leaffit_usd.segment.auto import SegmentParams, segment_plant
-        seg_p = _params(SegmentParams, o.segment, "segmentation parameters")
+    from leaffit_usd.segment.auto import SegmentParams
+    seg_p = _params(SegmentParams, o.segment, "segmentation parameters")
 
     T = _Timer(7)
     with T.stage("load", f"loading {input_path.name}"):
@@ -209,18 +220,19 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         cw = transform_cloud(cloud, frame.input_to_working)
         pts = np.asarray(cw.means, np.float64)
     with T.stage("segment", "segmenting leaves" if o.labels is None else f"reading labels {o.labels}"):
+        auto_seg = None
         if o.labels is None:
-            seg = segment_plant(pts, root_index, seg_p)
-            labels = np.asarray(seg.labels, np.int32)
+            auto_seg = _auto_segment(cw, root_index, seg_p)
+            labels = np.asarray(auto_seg.labels, np.int32)
         else:
             labels = load_labels(o.labels, cloud)
-            seg = None
         if o.edits is not None:
             from leaffit_usd.segment.edits import apply_edits_file
             labels = apply_edits_file(labels, cloud, o.edits, input_path)
-            seg = None
-        if seg is None:
-            seg = _segmentation_from_labels(pts, labels, root_index, seg_p)
+        if o.labels is None and o.edits is None:
+            seg = auto_seg
+        else:
+            seg = _segmentation_from_labels(cw, labels, root_index, seg_p, auto_seg)
         n_leaves = seg.n_leaves
         log.info("      %d leaves", n_leaves)
         if n_leaves == 0:
@@ -233,7 +245,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     with T.stage("stem", "building the stem"):
         stem = build_stem(seg, pts, fits, stem_p)
     params = {
-        "segment": _to_dict(seg_p) if seg_p is not None else {"labels": str(o.labels)},
+        "segment": {**_to_dict(seg_p), "labels_file": None if o.labels is None else str(o.labels)},
         "edits": None if o.edits is None else str(o.edits),
         "fit": _to_dict(fit_p), "mesh": _to_dict(mesh_p), "stem": _to_dict(stem_p),
         "up": o.up if isinstance(o.up, str) or o.up is None else list(map(float, o.up)),
