@@ -277,6 +277,21 @@ class GeodesicSolver:
         self._poisson = spla.splu((L + 1e-6 * Mm).tocsc(), **opts)
 
     # ---- solves ------------------------------------------------------------------------
+    def adjacency(self, lengths: bool = False) -> sp.csr_matrix:
+        """(M, M) symmetric csr matrix of the element edges between domain points: 1 per edge, or
+        the edge's Euclidean length with ``lengths=True`` (a graph for Dijkstra)."""
+        e = [self.triangles[:, [0, 1]], self.triangles[:, [1, 2]], self.triangles[:, [0, 2]], self.edges]
+        e = np.concatenate([q for q in e if len(q)] or [np.zeros((0, 2), np.int64)])
+        m = len(self._x)
+        a = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(m, m)).tocsr()
+        a = ((a + a.T) > 0).astype(np.int8).tocsr()
+        a.sort_indices()
+        if lengths:
+            r = np.repeat(np.arange(m), np.diff(a.indptr))
+            ln = np.linalg.norm(self._x[r] - self._x[a.indices], axis=1)
+            a = sp.csr_matrix((np.maximum(ln, 1e-12), a.indices, a.indptr), shape=(m, m))
+        return a
+
     @property
     def n_points(self) -> int:
         return len(self.points)

@@ -71,6 +71,8 @@ class SegmentParams:
     path_neighbors : neighbours for steepest descent and the merge test (ours; 16)
     t_coef : heat-method time step as a multiple of h^2 (geometry-central's 1.0)
     orientation_aware : use normals in the geodesic operator when they are given (ours; True)
+    apex_surface_neighbors : of the N_k Euclidean neighbours, the apex test uses only those also
+        within reach along the surface (ours; True; False = the paper's test exactly)
     require_blade : drop an instance whose local diameter never reaches epsilon (ours; True)
     seed : seed of the random domain subset
     """
@@ -87,6 +89,7 @@ class SegmentParams:
     path_neighbors: int = 16
     t_coef: float = 1.0
     orientation_aware: bool = True
+    apex_surface_neighbors: bool = True
     require_blade: bool = True
     seed: int = 0
 
@@ -182,62 +185,35 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
     tree_kd = cKDTree(sp_pts)
     s = len(samples)
     nk = int(min(p.n_neighbors, s - 1))
-    kp = int(min(p.path_neighbors, s - 1))
     apex_local = np.zeros(0, np.int64)
-    pnb = np.full((s, 1), -1)
-    if kp >= 1:
-        dp, pnb_raw = tree_kd.query(sp_pts, k=kp + 1, workers=-1)
-        # a strict maximum over N_k neighbours is one over its nearest kp <= N_k first: test the
-        # few survivors against all N_k (same result, ~20x less kNN work)
-        kq = min(kp, nk)
-        cand = np.flatnonzero((dr_s[pnb_raw[:, 1:kq + 1]] < dr_s[:, None]).all(1) & (samples != root))
-        if len(cand) and nk >= 1:
-            _, nb_c = tree_kd.query(sp_pts[cand], k=nk + 1, workers=-1)
-            nb_c = nb_c.reshape(len(cand), -1)
-            # drop self (first column unless an exact duplicate sample precedes it)
-            others = np.where(nb_c == cand[:, None], -1, nb_c)
+    if nk >= 1:
+        kq = int(min(16, nk))
+        _, nb16 = tree_kd.query(sp_pts, k=kq + 1, workers=-1)
+        # a strict maximum over N_k neighbours is one over its nearest 16 first: test the few
+        # survivors against all N_k (same result, ~20x less kNN work)
+        cand = np.flatnonzero((dr_s[nb16[:, 1:]] < dr_s[:, None]).all(1) & (samples != root))
+        if len(cand):
+            d_c, nb_c = tree_kd.query(sp_pts[cand], k=nk + 1, workers=-1)
+            d_c, nb_c = d_c.reshape(len(cand), -1), nb_c.reshape(len(cand), -1)
+            others = np.where(nb_c == cand[:, None], -1, nb_c)  # drop self
+            if p.apex_surface_neighbors:
+                others = _surface_filter(solver, samples, cand, others, d_c)
             vals = np.where(others >= 0, dr_s[np.maximum(others, 0)], -np.inf)
             apex_local = cand[(vals < dr_s[cand, None]).all(1)]
-        spacing = dp[:, min(8, kp)]
-        cap = 3.0 * np.maximum(spacing[:, None], spacing[pnb_raw])
-        pnb = np.where(dp <= cap, pnb_raw, -1)[:, 1:]
     tm["apexes"] = time.perf_counter() - t1
 
     # -- tree -------------------------------------------------------------------------------------
     t1 = time.perf_counter()
-    root_local = int(np.flatnonzero(samples == root)[0])
     order = apex_local[np.argsort(-dr_s[apex_local], kind="stable")]
-    fine_nb = lambda c: pnb[c][pnb[c] >= 0]  # noqa: E731
-    cache = {}
-    sp_med = float(np.median(spacing)) if kp >= 1 else p.epsilon
-    r_cap = 2 * p.epsilon
-    half_band = max(p.delta / 2, sp_med)
-
-    def merge_nb(c):
-        """Samples on the same cross-section as c (nearest first): within the local diameter of
-        the D_r iso-band through c (a stem's girth, a blade's width), at least 3 spacings, at most
-        2 epsilon. Paths on opposite sides of a thick stem thus merge; the paper's 512 neighbours
-        would do it too, but its leaping descent leaves too few visited nodes to touch."""
-        if c not in cache:
-            d, i = tree_kd.query(sp_pts[c], k=max(nk, 1) + 1, distance_upper_bound=r_cap)
-            ok = np.isfinite(d)
-            d, i = d[ok], i[ok]
-            band = np.abs(dr_s[i] - dr_s[c]) <= half_band
-            r = max(3 * sp_med, float(d[band].max()) if band.any() else 0.0)
-            cache[c] = i[1:][d[1:] <= r]
-        return cache[c]
-
-    def wide_nb(c):
-        return tree_kd.query(sp_pts[c], k=max(nk, 1) + 1)[1][1:]
-
-    tree, apex_paths = _build_tree(order, root_local, dr_s, fine_nb, merge_nb, wide_nb)
+    dr_dom = d_root[solver.domain]
+    tree, apex_paths = _build_tree(solver, dr_dom, samples[order], root, p)
     tm["tree"] = time.perf_counter() - t1
 
     seg_params = asdict(p)
     if len(order) == 0:
         log.warning("no leaf apex found (no sample is a strict local maximum of the distance "
                     "from the root over its %d neighbours): every Gaussian is stem", nk)
-        return _result(n, root, samples, tree, np.zeros(0, np.int64), np.zeros(0, np.int32),
+        return _result(n, root, solver.domain, tree, np.zeros(0, np.int64), np.zeros(0, np.int32),
                        [], [], np.zeros(n, np.int32), d_root, seg_params)
 
     # -- D_a for every apex, grouping -----------------------------------------------------------
@@ -258,7 +234,7 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
             lca = next((v for v in anc[j].tolist() if v in set_i), None)
             if lca is None:
                 continue
-            lca_g = samples[tree.nodes[lca]]
+            lca_g = solver.domain[tree.nodes[lca]]
             direct = 0.5 * (Dd[dom_apex[j], i] + Dd[dom_apex[i], j])
             via = da(i, lca_g) + da(j, lca_g)
             log.debug("apex pair %d,%d: direct %.3f via lca %.3f (lca D_r %.3f)", i, j, direct, via,
@@ -282,8 +258,8 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
     for col, j in enumerate(tips_j):
         cpath = anc[j]
         junction = next((k for k in range(1, len(cpath)) if children[cpath[k]] >= 2), len(cpath) - 1)
-        junction_g = int(samples[tree.nodes[cpath[junction]]])
-        path_g = samples[np.asarray([tree.nodes[v] for v in apex_paths[j]])]
+        junction_g = int(solver.domain[tree.nodes[cpath[junction]]])
+        path_g = solver.domain[np.asarray([tree.nodes[v] for v in apex_paths[j]])]
         base_g, b, has_blade = _petiole_base(pts, D_all[:, col], path_g, junction_g, p)
         if p.require_blade and not has_blade:
             log.info("apex %d: no blade wider than epsilon=%.3g along its path; not a leaf",
@@ -309,8 +285,36 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
     tm["petiole_labels"] = time.perf_counter() - t1
     tm["total"] = time.perf_counter() - t0
     log.info("segmentation: %d apexes, %d leaves (%.2f s)", A, int(labels.max(initial=0)), tm["total"])
-    return _result(n, root, samples, tree, apex_g, apex_labels, leaf_tip, leaf_base, labels,
+    return _result(n, root, solver.domain, tree, apex_g, apex_labels, leaf_tip, leaf_base, labels,
                    d_root, seg_params)
+
+
+def _surface_filter(solver, samples, cand, nbrs, dists):
+    """Keep, of each candidate's N_k Euclidean neighbours, those also reachable along the surface
+    graph within the same radius (the distance to its N_k-th neighbour); the rest become -1.
+
+    A Euclidean ball of N_k = 512 of 8192 samples is about one leaf's area: around the tip of a
+    small leaf it reaches across the air gap into a neighbouring leaf, whose higher D_r then
+    vetoes the apex. Removing only the neighbours that are not on the same surface patch keeps the
+    paper's test (and its robustness to noise) where leaves are apart, and fixes crowded plants.
+    """
+    from scipy.sparse.csgraph import dijkstra
+
+    graph = solver.adjacency(lengths=True)
+    near = solver._near
+    radius = np.where(np.isfinite(dists), dists, 0).max(1)
+    out = nbrs.copy()
+    step = 64
+    for lo in range(0, len(cand), step):
+        c = cand[lo:lo + step]
+        geo = dijkstra(graph, indices=near[samples[c]], limit=float(radius[lo:lo + step].max()) * 1.5)
+        nb = nbrs[lo:lo + step]
+        g = np.take_along_axis(geo, near[samples[np.maximum(nb, 0)]], axis=1)
+        # along the surface a neighbour is never closer than in space; allow the graph's detour
+        # (paths on a point-cloud graph are ~1.2-1.4x the true geodesic)
+        far = ~(g <= 1.5 * radius[lo:lo + step, None])
+        out[lo:lo + step] = np.where(far, -1, nb)
+    return out
 
 
 def _inliers(pts: np.ndarray, factor: float, k: int = 8) -> np.ndarray:
@@ -326,59 +330,81 @@ def _inliers(pts: np.ndarray, factor: float, k: int = 8) -> np.ndarray:
     return dk <= factor * med
 
 
-def _build_tree(order, root_local, dr, neighbours, merge_nb, wide):
-    """Rootward tree over the samples by steepest descent with the deferred-merge rule.
+def _build_tree(solver: GeodesicSolver, dr_dom, apex_g, root, p: SegmentParams):
+    """Rootward tree by steepest descent of D_r with the deferred-merge rule.
 
-    order : apex sample indices, farthest first; dr : (S,) D_r at samples; neighbours(c) : the
-    descent neighbourhood of sample c; merge_nb(c) : the neighbourhood tested for visited nodes,
-    nearest first; wide(c) : a wider one, used only to leave a local minimum. Returns the tree and, per apex, its path as node indices apex -> root.
+    The descent runs over the geodesic operator's own surface graph (its triangle and 1-D element
+    edges between domain points), so a path never leaps across the air gap between two leaves, as
+    a Euclidean neighbourhood among the samples does. "The neighbourhood of p_k contains a visited
+    node" is read on the surface too: p_k touches the tree when a visited point lies on the same
+    cross-section ring, i.e. in the same connected piece of the D_r iso-band (width
+    max(delta, 3 h)) through p_k (the girth of a stem, the width of a blade). Paths on opposite
+    sides of a thick stem thus meet at the first ring they share, and paths on two leaves that
+    are close in space but not on one surface never do. Deferred merge: the first touch is
+    ignored; if the next point touches too, the path attaches to the nearest visited point of its
+    ring (the junction).
+
+    dr_dom : (M,) D_r at the domain points; apex_g : (A,) apex Gaussians, farthest first.
+    Returns the tree (nodes = domain positions) and per apex its path apex -> root (node indices).
     """
-    tree = _Tree(nodes=[root_local], parent=[-1], pos={root_local: 0})
-    owner = {root_local: -1}  # sample -> path id that visited it
+    adj = solver.adjacency()
+    near = solver._near
+    root_d = int(near[root])
+    x = solver._x
+    m = len(x)
+    w = max(p.delta, 3 * solver.h)
+    band = np.where(np.isfinite(dr_dom), np.floor(np.nan_to_num(dr_dom, posinf=-w) / w), -1).astype(np.int64)
+    coo = adj.tocoo()
+    same = band[coo.row] == band[coo.col]
+    sub = coo_matrix((np.ones(int(same.sum())), (coo.row[same], coo.col[same])), shape=(m, m))
+    _, ring = connected_components(sub, directed=False)
+    ring_nodes: dict = {}
+
+    tree = _Tree(nodes=[root_d], parent=[-1], pos={root_d: 0})
+    ring_nodes.setdefault(int(ring[root_d]), []).append(0)
+
+    def touched(c):
+        cand = ring_nodes.get(int(ring[c]))
+        if not cand:
+            return -1
+        pos = x[[tree.nodes[t] for t in cand]]
+        return int(cand[int(np.argmin(((pos - x[c]) ** 2).sum(1)))])
+
     paths = []
-    for pid, a in enumerate(order.tolist()):
-        if a in tree.pos:  # an apex already on another path (rare): its path is that path's tail
-            paths.append(_path_to_root(tree, tree.pos[a]))
+    for a in apex_g.tolist():
+        a_d = int(near[a])
+        if a_d in tree.pos:
+            paths.append(_path_to_root(tree, tree.pos[a_d]))
             continue
-        cur, chain, pending = a, [a], False
-        attach = None
-        guard = 0
-        while True:
-            guard += 1
-            nbr = neighbours(cur)
-            touched = [v for v in merge_nb(cur).tolist() if v in tree.pos]
-            if cur in tree.pos:
-                attach = cur
-                chain.pop()
+        cur, chain, pending, attach_node = a_d, [a_d], False, 0
+        for _ in range(m + 1):
+            hit = touched(cur)
+            if hit >= 0 and pending:
+                attach_node = hit
                 break
-            if touched:
-                if pending:  # deferred merge: second consecutive contact -> merge here
-                    attach = touched[0]  # the nearest visited node: the junction
-                    break
-                pending = True
-            else:
-                pending = False
-            cand = nbr[dr[nbr] < dr[cur]] if len(nbr) else nbr
-            if len(cand) == 0:  # stuck in a local minimum: look wider
-                big = wide(cur)
-                cand = big[dr[big] < dr[cur]]
-            if len(cand) == 0 or guard > len(dr) + 5:
-                attach = touched[0] if touched else root_local
+            pending = hit >= 0
+            nb = adj.indices[adj.indptr[cur]:adj.indptr[cur + 1]]
+            lower = nb[dr_dom[nb] < dr_dom[cur]]
+            if len(lower) == 0:  # a local minimum of the graph (noise): look a little wider
+                _, wnb = solver._tree.query(x[cur], k=int(min(32, m)))
+                lower = wnb[dr_dom[wnb] < dr_dom[cur]]
+            if len(lower) == 0:
+                attach_node = hit if hit >= 0 else 0
                 break
-            nxt = int(cand[np.argmin(dr[cand])])
+            nxt = int(lower[np.argmin(dr_dom[lower])])
+            if nxt in tree.pos:
+                attach_node = tree.pos[nxt]
+                break
             chain.append(nxt)
             cur = nxt
-        # add chain (apex ... last new node) with parents pointing rootward to `attach`
-        par_node = tree.pos[attach]
-        idx = []
+        par_node = attach_node
         for v in reversed(chain):
             tree.pos[v] = len(tree.nodes)
             tree.nodes.append(v)
             tree.parent.append(par_node)
             par_node = tree.pos[v]
-            owner[v] = pid
-            idx.append(tree.pos[v])
-        paths.append(_path_to_root(tree, tree.pos[a]))
+            ring_nodes.setdefault(int(ring[v]), []).append(par_node)
+        paths.append(_path_to_root(tree, tree.pos[a_d]))
     return tree, paths
 
 
