@@ -39,6 +39,7 @@ log = logging.getLogger("leaffit_usd")
 
 N_SAMPLES = 8192  # the paper's N_s: density of the geodesic graph
 K_EXTEND = 4  # samples used to extend sample distances to every Gaussian
+FULL_CACHE = 8  # full (N,) distance fields kept (a drag reuses its source's field every update)
 
 #: Operation kinds and their fields (indices are cloud indices here, file indices in edits.json).
 OPERATIONS = {
@@ -105,6 +106,7 @@ class SampledGeodesics:
         self._nn_dist = (np.asarray(dist, np.float64).reshape(n, k) / self.height).astype(np.float32)
         self._cache: OrderedDict[int, np.ndarray] = OrderedDict()
         self._cache_size = int(cache_size)
+        self._full: OrderedDict[int, np.ndarray] = OrderedDict()  # (N,) fields of recent sources
         self.n = n
 
     def source_sample(self, g: int) -> int:
@@ -130,8 +132,18 @@ class SampledGeodesics:
         """(N,) float32 working-unit geodesic distance from Gaussian ``g`` to every Gaussian."""
         if not 0 <= int(g) < self.n:
             raise ParameterError("gaussian", f"an index in [0, {self.n})", g)
-        ds = self.sample_distance(self.source_sample(int(g))).astype(np.float32)
-        return (ds[self._nn_idx] + self._nn_dist).min(axis=1)
+        s = self.source_sample(int(g))
+        full = self._full.get(s)
+        if full is None:
+            ds = self.sample_distance(s).astype(np.float32)
+            full = (ds[self._nn_idx] + self._nn_dist).min(axis=1)
+            full.flags.writeable = False  # shared by the cache: never modified in place
+            self._full[s] = full
+            if len(self._full) > FULL_CACHE:
+                self._full.popitem(last=False)
+        else:
+            self._full.move_to_end(s)
+        return full
 
 
 @dataclass
