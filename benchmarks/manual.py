@@ -66,18 +66,23 @@ def timing_benchmark(n_gaussians: int, n_rays: int, seed: int = 0) -> dict:
         builds.append((time.perf_counter() - t) * 1e3)
     centre = (means.max(0) + means.min(0)) / 2
     radius = float(np.linalg.norm(means.max(0) - means.min(0)))
-    picks, exact, hits = [], 0, 0
+    picks, picks_min, exact, hits = [], [], 0, 0
     for i in range(n_rays):
         d = rng.normal(size=3)
         o = centre + radius * 1.5 * d / np.linalg.norm(d)
         aim = means[rng.integers(len(means))]
-        t = time.perf_counter()
-        r = bvh.pick(o, aim - o)
-        picks.append((time.perf_counter() - t) * 1e3)
+        reps = []
+        for _ in range(3):  # min of 3: the machine is shared, single runs catch scheduler stalls
+            t = time.perf_counter()
+            r = bvh.pick(o, aim - o)
+            reps.append((time.perf_counter() - t) * 1e3)
+        picks.append(reps[0])
+        picks_min.append(min(reps))
         hits += r.hit
         if i < 60:  # brute force is O(N); check a subset
             exact += r.index == pick_brute_force(means, scales, rots, o, aim - o).index
-    pick = {"build": stats(builds), "pick": stats(picks), "hits": hits, "rays": n_rays,
+    pick = {"build": stats(builds), "pick": stats(picks), "pick_min_of_3": stats(picks_min),
+            "hits": hits, "rays": n_rays,
             "exact_matches": f"{exact}/{min(60, n_rays)}"}
 
     height, _ = plant_frame(cloud)
@@ -267,6 +272,8 @@ def main(argv=None) -> int:
     print(f"  pick                 {p['median_ms']:8.2f} ms median, {p['p95_ms']:.2f} p95, {p['max_ms']:.2f} max "
           f"({tm['picking']['hits']}/{tm['picking']['rays']} hits; exact vs brute force "
           f"{tm['picking']['exact_matches']})")
+    p = tm["picking"]["pick_min_of_3"]
+    print(f"  pick (min of 3)      {p['median_ms']:8.2f} ms median, {p['p95_ms']:.2f} p95, {p['max_ms']:.2f} max")
     u = tm["update"]
     print(f"Tool updates (budget < 100 ms); geodesic set-up {u['geodesic_setup_s']:.2f} s on {u['samples']} samples")
     for k in ("drag_new_source", "drag_cached_source", "brush_new_centre", "server_pick_plus_preview"):

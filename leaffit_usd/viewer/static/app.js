@@ -40,8 +40,11 @@ function selected(i, bits) {
 
 function leafColor(label) {
   // golden-angle hues: neighbouring labels get distinct colours
+  // (hues near yellow are skipped: yellow marks the selection, as in the paper's GUI)
   const c = new THREE.Color();
-  c.setHSL((label * 0.61803398875 + 0.08) % 1, 0.62, 0.52);
+  let h = (label * 0.61803398875 + 0.08) % 1;
+  if (h > 0.1 && h < 0.21) h += 0.11;
+  c.setHSL(h, 0.62, 0.52);
   return c;
 }
 
@@ -323,6 +326,22 @@ window.addEventListener('keydown', (e) => {
 window.addEventListener('beforeunload', (e) => { if (S.state && S.state.dirty) e.preventDefault(); });
 
 // ---- start ------------------------------------------------------------------------------
+function robustSphere(pos) {
+  // centre and radius of the 2nd..98th percentile box of (a subsample of) the points
+  const n = pos.length / 3, step = Math.max(1, Math.floor(n / 20000));
+  const axes = [[], [], []];
+  for (let i = 0; i < n; i += step) for (let k = 0; k < 3; k++) axes[k].push(pos[3 * i + k]);
+  const lo = [], hi = [];
+  for (const a of axes) {
+    a.sort((x, y) => x - y);
+    lo.push(a[Math.floor(0.02 * (a.length - 1))]);
+    hi.push(a[Math.ceil(0.98 * (a.length - 1))]);
+  }
+  const c = new THREE.Vector3((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2);
+  const r = 0.5 * Math.hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]);
+  return { center: c, radius: Math.max(r, 1e-3) };
+}
+
 async function main() {
   const meta = await api('meta');
   S.meta = meta;
@@ -342,10 +361,10 @@ async function main() {
   const up = new THREE.Vector3(...meta.up).normalize();
   const side = Math.abs(up.z) < 0.9 ? new THREE.Vector3(0, 0, 1) : new THREE.Vector3(0, 1, 0);
   const dir = side.sub(up.clone().multiplyScalar(side.dot(up))).normalize();
-  const sphere = geometry.boundingSphere;
+  const sphere = robustSphere(S.positions);  // floaters do not decide the framing
   camera.up.copy(up);
   controls.target.copy(sphere.center);
-  camera.position.copy(sphere.center).addScaledVector(dir, sphere.radius * 2.6).addScaledVector(up, sphere.radius * 1.4);
+  camera.position.copy(sphere.center).addScaledVector(dir, sphere.radius * 2.2).addScaledVector(up, sphere.radius * 1.0);
   camera.lookAt(sphere.center);
   controls.update();
   setTool(document.querySelector('input[name=tool]:checked').value);
