@@ -50,7 +50,7 @@ class StemParams:
     petiole_radius: float | None = None
     sides: int = 8
     sphere_rings: int = 4
-    estimate_ball: float = 0.03
+    estimate_ball: float = 0.05
 
     def validate(self) -> None:
         for name in ("root_radius", "petiole_radius"):
@@ -67,38 +67,61 @@ class StemParams:
 
 # ---- radius estimates from the capture -------------------------------------------------------
 def _cross_section_radius(pts: np.ndarray) -> float | None:
-    """Radius of a cylinder whose surface samples are ``pts`` (M, 3): sqrt of the two smaller
-    PCA variances' sum (a circle of radius r has variance r^2/2 along each transverse axis)."""
+    """Radius of the tube whose surface samples are ``pts`` (M, 3), or None.
+
+    The axis is the points' principal direction; the points are projected onto the plane across
+    it and a circle is fitted algebraically (Kasa: least squares on x^2 + y^2 + D x + E y + F = 0),
+    which stays unbiased when only part of the circumference was captured (a tube seen from one
+    side) — the PCA spread would shrink with the visible arc.
+    """
     if len(pts) < 8:
         return None
     c = pts - pts.mean(0)
-    ev = np.linalg.eigvalsh(c.T @ c / len(pts))  # ascending
-    r = float(np.sqrt(max(ev[0] + ev[1], 0.0)))
-    return r if r > 0 else None
+    w, V = np.linalg.eigh(c.T @ c / len(pts))  # ascending
+    if w[2] <= 1.5 * w[1]:  # no clear axis: the ball holds a blob, not a tube
+        return None
+    q = c @ V[:, :2]  # coordinates across the axis
+    A = np.column_stack([q, np.ones(len(q))])
+    rhs = -(q ** 2).sum(1)
+    (D, E, F), *_ = np.linalg.lstsq(A, rhs, rcond=None)
+    r2 = D * D / 4 + E * E / 4 - F
+    if not np.isfinite(r2) or r2 <= 0:
+        return None
+    r = float(np.sqrt(r2))
+    spread = float(np.sqrt(w[0] + w[1]))
+    # an arc too flat to fit gives a huge circle: fall back to the spread then
+    return r if r < 4 * spread + 1e-12 else spread
 
 
-def estimate_radii(seg, points_working: np.ndarray, ball: float = 0.03) -> tuple[float | None, float | None]:
-    """(root_radius, petiole_radius) from the stem Gaussians' spread, or None where unknown.
+def estimate_radii(seg, points_working: np.ndarray, ball: float = 0.05) -> tuple[float | None, float | None]:
+    """(root_radius, petiole_radius) from the stem Gaussians, or None where unknown.
 
-    Root: stem Gaussians (label 0) within ``ball`` of the root. Petiole: median over leaves of the
-    same figure around each leaf's petiole base (stem and that leaf's Gaussians within ball/2).
+    Root: a circle fitted across the axis of the stem Gaussians (label 0) within ``ball`` of the
+    root. Petiole: median over leaves of the same figure for the stem Gaussians within
+    ``0.4 ball`` of each leaf's petiole base (the petiole; the blade's own Gaussians would
+    measure the blade).
     """
     from scipy.spatial import cKDTree
 
     pts = np.asarray(points_working, np.float64)
     labels = np.asarray(seg.labels)
+    if len(pts) == 0:
+        return None, None
     tree = cKDTree(pts)
     root_r = None
     if 0 <= int(seg.root_index) < len(pts):
-        near = np.asarray(tree.query_ball_point(pts[int(seg.root_index)], ball), np.int64)
-        near = near[labels[near] == 0]
-        root_r = _cross_section_radius(pts[near])
+        for b in (ball, 2 * ball, 0.5 * ball):  # a thick or short base needs another ball
+            near = np.asarray(tree.query_ball_point(pts[int(seg.root_index)], b), np.int64)
+            near = near[labels[near] == 0]
+            root_r = _cross_section_radius(pts[near])
+            if root_r is not None:
+                break
     pet = []
-    for li, base in enumerate(np.asarray(seg.leaf_base, np.int64)):
+    for base in np.asarray(seg.leaf_base, np.int64):
         if not 0 <= base < len(pts):
             continue
-        near = np.asarray(tree.query_ball_point(pts[base], ball / 2), np.int64)
-        near = near[(labels[near] == 0) | (labels[near] == li + 1)]
+        near = np.asarray(tree.query_ball_point(pts[base], 0.4 * ball), np.int64)
+        near = near[labels[near] == 0]
         r = _cross_section_radius(pts[near])
         if r is not None:
             pet.append(r)

@@ -184,3 +184,16 @@ def test_sparse_splats_are_inpainted(caplog):
     assert m.report["texture_fallback"] == "inpainted"
     assert "inpainted" in caplog.text
     assert (m.front_texture[..., 3] > 128).mean() > 0.05
+
+
+def test_mesh_value_serialises(leaf_mesh, tmp_path):
+    import json
+
+    from leaffit_usd.mesh.result import TemplateMesh
+    from leaffit_usd.serialize import load_value, save_value
+
+    json.dumps(leaf_mesh.report)  # plain JSON: goes into the stage's metadata and --report
+    save_value(leaf_mesh, tmp_path / "m.npz")
+    back = load_value(TemplateMesh, tmp_path / "m.npz")
+    assert np.array_equal(back.faces, leaf_mesh.faces) and np.array_equal(back.back_texture, leaf_mesh.back_texture)
+    assert back.report["sheet_vertices"] == leaf_mesh.report["sheet_vertices"]
