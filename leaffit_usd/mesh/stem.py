@@ -44,6 +44,9 @@ class StemParams:
     sides : number of sides of each tube (>= 3)
     sphere_rings : latitude rings of the joint spheres (>= 2); longitude = ``sides``
     estimate_ball : radius of the neighbourhood used by the estimates, working units
+    simplify : unbranched runs of tree edges are merged into fewer cylinders while the axis stays
+        within ``simplify`` x the local radius of the tree's polyline (Douglas-Peucker); 0 keeps
+        every tree edge. Junctions, tips and the root are always kept, so Leonardo's rule holds.
     """
 
     root_radius: float | None = None
@@ -51,6 +54,7 @@ class StemParams:
     sides: int = 8
     sphere_rings: int = 4
     estimate_ball: float = 0.05
+    simplify: float = 0.5
 
     def validate(self) -> None:
         for name in ("root_radius", "petiole_radius"):
@@ -61,6 +65,8 @@ class StemParams:
             raise ParameterError("sides", "an integer >= 3", self.sides)
         if int(self.sphere_rings) < 2:
             raise ParameterError("sphere_rings", "an integer >= 2", self.sphere_rings)
+        if not (np.isfinite(self.simplify) and self.simplify >= 0):
+            raise ParameterError("simplify", "a number >= 0 (multiple of the local radius)", self.simplify)
         if not (np.isfinite(self.estimate_ball) and self.estimate_ball > 0):
             raise ParameterError("estimate_ball", "a positive distance", self.estimate_ball)
 
@@ -298,6 +304,62 @@ def _tube(path: np.ndarray, radii: np.ndarray, sides: int):
     return v, np.asarray(f, np.int64)
 
 
+def _rdp(path: np.ndarray, tol: np.ndarray) -> list[int]:
+    """Douglas-Peucker on a polyline (P, 3) with a per-vertex tolerance (P,); kept indices."""
+    keep = [0, len(path) - 1]
+    stack = [(0, len(path) - 1)]
+    while stack:
+        i, j = stack.pop()
+        if j - i < 2:
+            continue
+        a, b = path[i], path[j]
+        ab = b - a
+        L2 = float(ab @ ab)
+        mid = path[i + 1:j]
+        t = np.clip(((mid - a) @ ab) / L2, 0, 1) if L2 > 0 else np.zeros(len(mid))
+        d = np.linalg.norm(mid - (a + t[:, None] * ab), axis=1)
+        k = int(np.argmax(d - tol[i + 1:j]))
+        if d[k] > tol[i + 1 + k]:
+            keep.append(i + 1 + k)
+            stack += [(i, i + 1 + k), (i + 1 + k, j)]
+    return sorted(set(keep))
+
+
+def simplify_chains(points, child, parent, r_parent_end, r_child_end, factor: float):
+    """Merge unbranched runs of stem edges (see ``StemParams.simplify``); same array layout.
+
+    points : (S, 3) tree node positions; child, parent : (E,) edge end nodes; radii per edge end.
+    """
+    if factor <= 0 or len(child) == 0:
+        return child, parent, r_parent_end, r_child_end
+    S = len(points)
+    deg = np.zeros(S, np.int64)
+    np.add.at(deg, child, 1)
+    np.add.at(deg, parent, 1)
+    edge_of_child = np.full(S, -1, np.int64)
+    edge_of_child[child] = np.arange(len(child))
+    kids: dict[int, list[int]] = {}
+    for e, p in enumerate(parent.tolist()):
+        kids.setdefault(p, []).append(e)
+    out_c, out_p, out_rp, out_rc = [], [], [], []
+    for e0 in range(len(child)):
+        if deg[parent[e0]] == 2 and edge_of_child[parent[e0]] >= 0:
+            continue  # not the start of a chain
+        chain = [e0]
+        while deg[child[chain[-1]]] == 2 and len(kids.get(int(child[chain[-1]]), [])) == 1:
+            chain.append(kids[int(child[chain[-1]])][0])
+        nodes = np.concatenate([[parent[chain[0]]], child[chain]])
+        radii = np.concatenate([[r_parent_end[chain[0]]], r_child_end[chain]])
+        keep = _rdp(points[nodes], factor * radii)
+        for i, j in zip(keep[:-1], keep[1:]):
+            out_p.append(nodes[i])
+            out_c.append(nodes[j])
+            out_rp.append(radii[i] if i > 0 else r_parent_end[chain[0]])
+            out_rc.append(radii[j])
+    return (np.asarray(out_c, np.int64), np.asarray(out_p, np.int64),
+            np.asarray(out_rp, np.float64), np.asarray(out_rc, np.float64))
+
+
 def build_stem(seg, points_working, fits=None, params: StemParams | None = None) -> Stem:
     """Stem cylinders from ``seg``'s rootward tree.
 
@@ -321,6 +383,12 @@ def build_stem(seg, points_working, fits=None, params: StemParams | None = None)
                              f"{len(np.asarray(seg.tree_parent))}/{len(np.asarray(seg.tree_leaf))}")
     root_r, pet_r = _resolve_radii(params, seg, pts_all, fits)
     child, parent, r_p_end, r_c_end, n_tips, _, _ = leonardo_radii(seg, pts_all, root_r, pet_r)
+    n_tree_edges = len(child)
+    child, parent, r_p_end, r_c_end = simplify_chains(pts_all[nodes], child, parent, r_p_end,
+                                                      r_c_end, float(params.simplify))
+    if len(child) < n_tree_edges:
+        log.info("stem: %d tree edges -> %d cylinders (simplify=%g)", n_tree_edges, len(child),
+                 params.simplify)
     empty = Stem(starts=np.zeros((0, 3), np.float32), ends=np.zeros((0, 3), np.float32),
                  radii_start=np.zeros(0, np.float32), radii_end=np.zeros(0, np.float32),
                  parent=np.zeros(0, np.int64), points=np.zeros((0, 3), np.float32),
@@ -328,7 +396,7 @@ def build_stem(seg, points_working, fits=None, params: StemParams | None = None)
     if len(child) == 0:
         log.warning("stem: the segmentation tree has no stem edges; writing no stem")
         return empty
-    if len(child) == 1:
+    if n_tree_edges == 1:
         log.warning("stem: the segmentation tree has a single stem edge; the stem is one tapered cylinder")
     tp = pts_all[nodes]
     starts, ends = tp[parent], tp[child]

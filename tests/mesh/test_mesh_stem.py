@@ -25,7 +25,12 @@ def test_edges_exclude_leaf_interiors(tree, stem):
     assert not ((lab[child] != 0) & (lab[child] == lab[parent])).any()
     # every leaf is attached: one stem edge ends at each leaf's first node
     assert sorted(set(lab[child][lab[child] > 0].tolist())) == list(range(1, seg.n_leaves + 1))
-    assert len(stem.starts) == len(child)
+    full = build_stem(seg, tree[1], None, StemParams(root_radius=R_ROOT, petiole_radius=R_PET, simplify=0))
+    assert len(full.starts) == len(child)
+    # the default simplification merges straight runs but keeps every junction and tip
+    assert len(stem.starts) < len(child)
+    ends = lambda st: {tuple(np.round(p, 6)) for p in st.ends[np.setdiff1d(np.arange(len(st.ends)), st.parent)]}
+    assert ends(stem) == ends(full)
 
 
 def test_leonardo_rule_at_every_junction(stem):
