@@ -80,10 +80,14 @@ class GeodesicSolver:
     domain : None (operator on all points), int (voxel subsample of about that many points) or
         (M,) int indices of the points to build the operator on.
     t_coef : heat time as a multiple of h^2 (geometry-central's default 1).
+    bridge_gap : if given, pieces of at least ``bridge_min`` domain points that are cut off from
+        the largest piece by a gap narrower than this (in the points' units) are joined to it by
+        one 1-D element across the gap (a petiole that stops short of its blade); smaller or
+        farther pieces stay apart (floaters).
     """
 
     def __init__(self, points: np.ndarray, normals: np.ndarray | None = None, *, domain=None,
-                 t_coef: float = 1.0):
+                 t_coef: float = 1.0, bridge_gap: float | None = None, bridge_min: int = 20):
         pts = np.asarray(points, np.float64)
         if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
             raise ParameterError("points", "a non-empty (N, 3) array", getattr(pts, "shape", pts))
@@ -115,6 +119,8 @@ class GeodesicSolver:
         self.domain = dom
         self._x = pts[dom]
         self._nrm = None if normals is None else normals[dom]
+        self._bridge_gap, self._bridge_min = bridge_gap, int(bridge_min)
+        self.bridges = np.zeros((0, 2), np.int64)
         self._build(t_coef)
         self._tree = cKDTree(self._x)
         if len(dom) == n and np.array_equal(dom, np.arange(n)):
@@ -205,6 +211,12 @@ class GeodesicSolver:
             edges = dropped_edges = np.zeros((0, 2), np.int64)
         if self._nrm is not None:
             tris, edges = _reconnect(m, tris, edges, dropped_tris, dropped_edges)
+        if self._bridge_gap is not None and self._bridge_gap > 0:
+            self.bridges = _bridge(x, tris, edges, float(self._bridge_gap), self._bridge_min)
+            if len(self.bridges):
+                log.info("geodesics: %d gap(s) up to %.3g bridged", len(self.bridges),
+                         float(np.linalg.norm(x[self.bridges[:, 0]] - x[self.bridges[:, 1]], axis=1).max()))
+                edges = np.r_[edges, self.bridges]
         self.triangles, self.edges = tris, edges
 
         # gradient operator G (3E x m) and element measures a (E,)
@@ -367,6 +379,31 @@ def _components(m, tris, edges):
     e = np.concatenate([q for q in pairs if len(q)] or [np.zeros((0, 2), np.int64)])
     g = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(m, m))
     return connected_components(g, directed=False)[1]
+
+
+def _bridge(x, tris, edges, gap, min_size):
+    """(B, 2) int64 edges joining pieces (>= min_size points) to the largest piece across gaps
+    <= ``gap``, closest gap first (Kruskal on pieces)."""
+    m = len(x)
+    comp = _components(m, tris, edges)
+    sizes = np.bincount(comp)
+    main = sizes.argmax()
+    in_main = comp == main
+    big = sizes >= min_size
+    out = []
+    while True:
+        cand = np.flatnonzero(~in_main & big[comp])
+        if len(cand) == 0:
+            break
+        mi = np.flatnonzero(in_main)
+        d, j = cKDTree(x[mi]).query(x[cand], k=1, distance_upper_bound=gap)
+        if not np.isfinite(d).any():
+            break
+        k = int(np.argmin(d))
+        a, b = int(cand[k]), int(mi[j[k]])
+        out.append((a, b))
+        in_main |= comp == comp[a]
+    return np.asarray(out, np.int64).reshape(-1, 2)
 
 
 def _reconnect(m, tris, edges, dropped_tris, dropped_edges):

@@ -7,8 +7,8 @@ these units):
    :mod:`leaffit_usd.geometry.heat`).
 2. Farthest point sampling to ``N_s`` samples; ``N_k`` Euclidean nearest samples each; apex
    candidates = strict local maxima of ``D_r`` over those neighbours.
-3. The rootward tree: from each apex (farthest first) steepest descent of ``D_r`` over a sample's
-   neighbours, with the deferred-merge rule (a path touching a visited node merges only if its next
+3. The rootward tree: from each apex (farthest first) steepest descent of ``D_r``, with the
+   deferred-merge rule (a path touching a visited node merges only if its next
    node also touches one); junctions are the nodes where paths meet.
 4. ``D_a`` from every apex (all solved together); apexes a, a' are on one leaf when
    ``D_a[a'] < D_a[lca] + D_a'[lca] - tau``; leaves are the connected components.
@@ -17,21 +17,31 @@ these units):
    past the protection window (fraction ``rho`` of the path from the tip to its first junction)
    with ``d < epsilon`` is the base; the Gaussians with ``D_a`` below the base's are the leaf.
 
-Choices the paper leaves open (each stated where it is made):
+Choices the paper leaves open, and deviations (each with its reason; all switchable):
 
 * Geodesic domain: the operator is built on the N_s FPS samples plus a seeded random subset of the
   Gaussians (``geodesic_points``; random keeps the relative density of thin stems, which FPS and
   voxel grids thin out) and distances are interpolated to every Gaussian; ~0.6 s on 20k points
   instead of ~5 s on 100k, with D_r within ~1% of the plant height of the full solve.
-* Descent neighbourhood: steepest descent and the merge test use the ``path_neighbors`` (16)
-  nearest samples, capped at 3x the local sample spacing: with the 512 apex-test neighbours a
-  single step leaps across a whole leaf (or to a neighbouring leaf), which leaves the petiole march
-  with a handful of nodes. The N_k neighbourhood is still the one for apex detection.
+* Floaters (``outlier_factor``) are left out; pieces cut off by a gap narrower than
+  ``bridge_gap`` are joined across it; pieces still apart from the root stay unassigned.
+* Apex test (``apex_surface_neighbors``): of the N_k Euclidean neighbours only those reachable
+  along the surface within the same radius vote; a 512-sample ball around a small leaf's tip
+  otherwise reaches into the neighbouring leaf, whose higher D_r vetoes the apex.
+* Tree: steepest descent over the geodesic operator's surface graph (a Euclidean neighbourhood
+  among the samples leaps across the air between leaves); "the neighbourhood contains a visited
+  node" is read as "a visited node lies on the same cross-section ring" (connected piece of the
+  D_r iso-band), so paths on opposite sides of a thick stem merge, and paths on two leaves close
+  in space never do. Deferred-merge rule as in the paper.
+* Petiole (``blade_first``): the base can be found only after the march crossed the blade
+  (diameter >= epsilon once), besides the protection window; long tapering tips otherwise stop
+  the march early. An instance whose diameter never reaches epsilon has no blade (e.g. the top of
+  a bare stem) and is dropped (``require_blade``).
 * A Gaussian claimed by several leaves goes to the one where it lies deepest (smallest
-  ``D_a / base distance``). An instance whose band diameter never reaches epsilon has no blade
-  (e.g. the top of a bare stem) and is dropped (``require_blade``).
-* With ``normals`` (each Gaussian's smallest-scale axis), the geodesic operator drops elements that
-  leave a Gaussian's tangent plane, so a leaf lying just above another is not short-cut.
+  ``D_a / base distance``).
+* With ``normals`` (each flat Gaussian's smallest-scale axis), the geodesic operator drops elements
+  that leave a Gaussian's tangent plane, so a leaf lying just above another is not short-cut
+  (never cutting a piece off: see :mod:`leaffit_usd.geometry.heat`).
 """
 from __future__ import annotations
 
@@ -68,11 +78,16 @@ class SegmentParams:
         (~5 Gaussians per sample) so tips and margins are kept
     outlier_factor : a Gaussian whose 8th-neighbour distance exceeds this factor times the median
         is a floater, left unassigned (ours; 4.0 = 16x sparser than typical; 0 disables)
-    path_neighbors : neighbours for steepest descent and the merge test (ours; 16)
+    bridge_gap : pieces of the cloud cut off by a gap narrower than this (working units) are joined
+        to the plant across it (ours; 0.05 = epsilon: a gap narrower than a petiole, e.g. a petiole
+        that stops short of its blade, is a capture artefact, not a separate object; 0 disables)
     t_coef : heat-method time step as a multiple of h^2 (geometry-central's 1.0)
     orientation_aware : use normals in the geodesic operator when they are given (ours; True)
     apex_surface_neighbors : of the N_k Euclidean neighbours, the apex test uses only those also
         within reach along the surface (ours; True; False = the paper's test exactly)
+    blade_first : the petiole base can only be found after the march has crossed the blade
+        (a node with diameter >= epsilon): the protection window's purpose, without its failure on
+        long tapering tips (ours; True)
     require_blade : drop an instance whose local diameter never reaches epsilon (ours; True)
     seed : seed of the random domain subset
     """
@@ -86,20 +101,22 @@ class SegmentParams:
     geodesic_points: int = 12000
     fps_candidates: int = 40000
     outlier_factor: float = 4.0
-    path_neighbors: int = 16
+    bridge_gap: float = 0.05
     t_coef: float = 1.0
     orientation_aware: bool = True
     apex_surface_neighbors: bool = True
     require_blade: bool = True
+    blade_first: bool = True
     seed: int = 0
 
     def validate(self) -> "SegmentParams":
-        ints = {"n_samples": 2, "n_neighbors": 1, "geodesic_points": 0, "path_neighbors": 2,
-                "fps_candidates": 0}
+        ints = {"n_samples": 2, "n_neighbors": 1, "geodesic_points": 0, "fps_candidates": 0}
         for name, lo in ints.items():
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or v < lo:
                 raise ParameterError(name, f"an integer >= {lo}", v)
+        if not (np.isfinite(self.bridge_gap) and self.bridge_gap >= 0):
+            raise ParameterError("bridge_gap", "a number >= 0 (0 disables)", self.bridge_gap)
         for name in ("tau", "delta", "epsilon", "t_coef"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
@@ -166,7 +183,8 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
 
     t1 = time.perf_counter()
     nrm = normals if (normals is not None and p.orientation_aware) else None
-    solver = GeodesicSolver(pts, nrm, domain=domain, t_coef=p.t_coef)
+    solver = GeodesicSolver(pts, nrm, domain=domain, t_coef=p.t_coef,
+                            bridge_gap=p.bridge_gap if p.bridge_gap > 0 else None)
     tm["geodesic_build"] = time.perf_counter() - t1
 
     t1 = time.perf_counter()
@@ -442,7 +460,7 @@ def _petiole_base(pts, d_a, path_g, junction_g, p: SegmentParams):
         diam = float(np.sqrt(((pts[band] - pts[path_g[k]]) ** 2).sum(1).max())) if len(band) else 0.0
         if diam >= p.epsilon:
             has_blade = True
-        if c >= protect and diam < p.epsilon:
+        if c >= protect and diam < p.epsilon and (has_blade or not p.blade_first):
             return int(path_g[k]), float(c), has_blade
     # never narrower than epsilon before the root: base at the first junction
     return int(path_g[junction]), float(dvals[junction]), has_blade
