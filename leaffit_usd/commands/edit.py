@@ -24,7 +24,11 @@ leaves; undo/redo. Save writes two files (never a path chosen by the page):
   EDITS.json   the operations, replayable:  leaffit-usd segment INPUT --edits EDITS.json
   LABELS.npz   the labels (int32 per Gaussian, file order, 0 = stem), usable with --labels
 
-Defaults: next to INPUT as <stem>.edits.json and <stem>.labels.npz. Stop with Ctrl-C."""
+Defaults: next to INPUT as <stem>.edits.json and <stem>.labels.npz. Stop with Ctrl-C.
+
+The session starts from --labels, or else from the automatic segmentation exactly as
+'convert' computes it (same --up/--root, paper defaults), so 'convert INPUT --edits EDITS.json'
+(with the same --labels, if any) reproduces the saved labels."""
 ORDER = 25
 
 log = logging.getLogger("leaffit_usd")
@@ -35,8 +39,12 @@ def add_arguments(p) -> None:
 
     p.add_argument("input", metavar="INPUT", help="3DGS capture (.ply or USD)")
     p.add_argument("--labels", metavar="LABELS.npz",
-                   help="start from this segmentation (e.g. from 'leaffit-usd segment'); "
-                        "default: everything unassigned")
+                   help="start from this segmentation (.npz with 'labels', file order); "
+                        "default: the automatic segmentation")
+    p.add_argument("--empty", action="store_true", help="start with every Gaussian unassigned")
+    p.add_argument("--up", default="auto", help="up direction for the automatic segmentation (as in convert)")
+    p.add_argument("--root", default="auto", help="root for the automatic segmentation: auto or X,Y,Z (as in convert)")
+    p.add_argument("--root-index", type=int, default=None, metavar="I", help="root Gaussian's index in the input file")
     p.add_argument("--edits", metavar="EDITS.json",
                    help="continue a session: replay these edits first (they can be undone)")
     p.add_argument("--edits-out", metavar="PATH", help="where Save writes the edits (default: INPUT stem + .edits.json)")
@@ -52,34 +60,41 @@ def add_arguments(p) -> None:
 def read_labels_file(path, cloud) -> tuple[np.ndarray, int | None]:
     """Labels (cloud order, int32) and root index (cloud order or None) from a segmentation .npz.
 
-    The file holds ``labels`` (one int per Gaussian of the input file, file order, >= 0) and
-    optionally ``root_index`` (array or inside the ``__json__`` record of ``save_value``).
+    Labels are read exactly as ``convert --labels`` reads them (``pipeline.load_labels``:
+    negative = unassigned, leaves renumbered 1..L), so edits replay on the same starting labels.
+    ``root_index`` (file order) is taken from the file when present (array or ``__json__``).
     """
     import json
 
-    from leaffit_usd.errors import InputFileError
+    from leaffit_usd.pipeline import load_labels
 
+    labels = load_labels(path, cloud)
+    root = None
     try:
         with np.load(path, allow_pickle=False) as z:
-            if "labels" not in z.files:
-                raise InputFileError(path, "has no 'labels' array (expected a segmentation .npz)")
-            labels = np.asarray(z["labels"])
-            root = None
             if "root_index" in z.files:
                 root = int(z["root_index"])
             elif "__json__" in z.files:
                 root = json.loads(str(z["__json__"])).get("root_index")
-    except (OSError, ValueError) as e:
-        raise InputFileError(path, f"not a readable .npz ({e})") from None
-    if labels.ndim != 1 or labels.shape[0] != cloud.file_count:
-        raise InputFileError(path, f"has {labels.shape} labels; the input has {cloud.file_count} Gaussians")
-    if not np.issubdtype(labels.dtype, np.integer) or (labels.size and labels.min() < 0):
-        raise InputFileError(path, "labels must be integers >= 0 (0 = stem)")
+    except (OSError, ValueError, TypeError):
+        root = None
     root_cloud = None
     if root is not None and 0 <= int(root) < cloud.file_count:
         hit = np.flatnonzero(cloud.file_index == int(root))
         root_cloud = int(hit[0]) if hit.size else None
-    return labels[cloud.file_index].astype(np.int32), root_cloud
+    return labels, root_cloud
+
+
+def automatic_labels(cloud, up="auto", root="auto", root_index=None):
+    """(labels (N,) int32 cloud order, root index, Frame) from the automatic segmentation, as convert does."""
+    from leaffit_usd.pipeline import _auto_segment
+    from leaffit_usd.segment.auto import SegmentParams
+    from leaffit_usd.splats.frame import make_frame, transform_cloud
+
+    choice = make_frame(cloud, up=up, root=root, root_index=root_index)
+    cw = transform_cloud(cloud, choice.frame.input_to_working)
+    seg = _auto_segment(cw, choice.root_index, SegmentParams())
+    return np.asarray(seg.labels, np.int32), int(choice.root_index), choice.frame
 
 
 def _open_browser(url: str) -> None:
@@ -108,18 +123,25 @@ def run(args) -> int:
         raise ParameterError("--samples", "at least 16", args.samples)
     inp = Path(args.input)
     cloud = load_cloud(inp)
+    if args.labels and args.empty:
+        raise ParameterError("--empty", "not together with --labels", True)
+    frame = None
     if args.labels:
         labels, root = read_labels_file(args.labels, cloud)
-    else:
+    elif args.empty:
         labels, root = np.zeros(len(cloud), np.int32), None
-        log.info("edit: starting with every Gaussian unassigned (run 'leaffit-usd segment' first and "
-                 "pass --labels for the automatic leaves)")
+        log.info("edit: starting with every Gaussian unassigned")
+    else:
+        log.info("edit: automatic segmentation (as convert does; --empty to skip, --labels to reuse one)")
+        labels, root, frame = automatic_labels(cloud, args.up, args.root, args.root_index)
+        log.info("edit: %d leaves found", int(labels.max(initial=0)))
     edits = load_edits(args.edits, inp) if args.edits else None
     stem = inp.name.rsplit(".", 1)[0]
     edits_out = Path(args.edits_out) if args.edits_out else inp.with_name(stem + ".edits.json")
     labels_out = Path(args.labels_out) if args.labels_out else inp.with_name(stem + ".labels.npz")
     session = build_session(cloud, labels, inp, edits_out, labels_out, root_index=root,
-                            height=edits.height if edits else None,
+                            height=edits.height if edits else (frame.height if frame else None),
+                            up=frame.up if frame else None,
                             n_samples=edits.n_samples if edits else args.samples,
                             min_opacity=args.min_opacity)
     if edits is not None:

@@ -343,12 +343,13 @@ class ViewerServer:
 
 def build_session(cloud, labels, input_path, edits_out, labels_out, root_index=None,
                   height=None, n_samples=None, solver_factory=None, min_opacity: float = 0.0,
-                  normals: str | None = "smallest-axis"):
+                  normals: str | None = "smallest-axis", up=None):
     """Make a :class:`ViewerSession` for ``cloud`` (input frame) starting from ``labels`` (cloud order).
 
     input_path : the input file (hashed into the edits); height : plant height in input units
     (default: :func:`leaffit_usd.segment.edits.plant_frame`); min_opacity : Gaussians below it
-    are not pickable (floaters); normals : "smallest-axis" for orientation-aware geodesics, or None.
+    are not pickable (floaters); normals : "smallest-axis" for orientation-aware geodesics, or None;
+    up : (3,) plant up axis, input frame (default: from :func:`plant_frame`, with the height).
     """
     from leaffit_usd.io_util import file_sha256
     from leaffit_usd.segment.edits import Edits, gaussian_normals, labels_sha256, plant_frame
@@ -356,8 +357,11 @@ def build_session(cloud, labels, input_path, edits_out, labels_out, root_index=N
     from leaffit_usd.segment.picking import GaussianBVH
 
     t0 = time.perf_counter()
-    auto_height, up = plant_frame(cloud)
-    height = float(height or auto_height)
+    if height is None or up is None:
+        auto_height, auto_up = plant_frame(cloud)
+        height = float(height or auto_height)
+        up = auto_up if up is None else up
+    up = np.asarray(up, np.float64)
     n_samples = int(n_samples or N_SAMPLES)
     labels = np.asarray(labels, np.int32)
     template = Edits(input_sha256=file_sha256(input_path), n_gaussians=int(cloud.file_count),

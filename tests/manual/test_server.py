@@ -127,11 +127,18 @@ def test_real_socket_is_loopback_only(served):
         urllib.request.urlopen(server.url + "api/meta", timeout=2)
 
 
-def test_cli_prints_url_and_stops_cleanly_on_ctrl_c(served, tmp_path):
+def test_cli_continues_a_session_prints_url_and_stops_cleanly_on_ctrl_c(served, tmp_path):
+    from leaffit_usd.io_util import file_sha256
+    from leaffit_usd.segment.edits import Edits, save_edits
+
     d = served[1]
+    n = len(served[0].cloud)
+    save_edits(Edits(input_sha256=file_sha256(d / "plant.ply"), n_gaussians=n, height=1.0, n_samples=1000,
+                     operations=[{"op": "brush", "centers": [n - 5], "radius": 0.05, "mode": "add"},
+                                 {"op": "assign", "label": "new"}]), tmp_path / "prev.json")
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     p = subprocess.Popen([sys.executable, "-m", "leaffit_usd", "edit", str(d / "plant.ply"), "--no-browser",
-                          "--samples", "1000", "--labels-out", str(tmp_path / "l.npz")],
+                          "--empty", "--edits", str(tmp_path / "prev.json"), "--labels-out", str(tmp_path / "l.npz")],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     try:
         line = ""
@@ -143,7 +150,8 @@ def test_cli_prints_url_and_stops_cleanly_on_ctrl_c(served, tmp_path):
         assert "http://127.0.0.1:" in line, p.stderr.read()
         url = line.split("open ", 1)[1].strip()
         with urllib.request.urlopen(url + "api/state", timeout=10) as r:
-            assert json.loads(r.read())["n_ops"] == 0
+            st = json.loads(r.read())
+        assert st["n_ops"] == 2 and len(st["leaves"]) == 1 and st["can_undo"] and not st["dirty"]
         p.send_signal(signal.SIGINT)
         out, err = p.communicate(timeout=20)
         assert p.returncode == 0, err
