@@ -80,6 +80,11 @@ def test_brush_assign_save_in_chromium(sample, heat, tmp_path):
             page.click("[data-testid=assign]")
             page.wait_for_function("() => window.leaffit.state().n_ops === 2", timeout=30000)
             assert "Leaf 1" in page.inner_text("[data-testid=leaves]")
+            page.click("[data-testid=undo]")  # undo / redo round trip through the page
+            page.wait_for_function("() => window.leaffit.state().n_ops === 1 && window.leaffit.state().can_redo")
+            assert "Leaf 1" not in page.inner_text("[data-testid=leaves]")
+            page.keyboard.press("Control+Shift+Z")
+            page.wait_for_function("() => window.leaffit.state().n_ops === 2")
             page.click("[data-testid=save]")
             page.wait_for_function("() => document.getElementById('outputs').textContent.startsWith('saved')",
                                    timeout=30000)
