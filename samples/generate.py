@@ -63,6 +63,8 @@ class PlantSpec:
     height : approximate plant height, metres (canonical frame); None = random 0.3-1.2
     branches, side_shoots : counts; None = random
     floaters : fraction of Gaussians that are floaters (label -1)
+    holes : fraction of leaves with a poorly reconstructed patch (almost no Gaussians there;
+        their GT mesh stays complete)
     variation : per-leaf shape/size variation scale (0 = identical leaves)
     palette : front colour RGB in [0, 1]; None = per-kind green
     global_frame : apply a random similarity (input frame != canonical frame)
@@ -81,6 +83,7 @@ class PlantSpec:
     branches: int | None = None
     side_shoots: int | None = None
     floaters: float = 0.003
+    holes: float = 0.15
     variation: float = 1.0
     palette: tuple | None = None
     glossy: float = 0.5
@@ -342,6 +345,7 @@ class _Leaf:
     vein_phase: float
     n_secondary: int
     pet_radius: float
+    hole: tuple | None = None   # (centre (2,), radius) in leaf 2D units: a sparse patch
 
     def world(self):
         R = self.place.frame()
@@ -381,7 +385,7 @@ def _build(spec: PlantSpec, rng: np.random.Generator):
     habit = spec.habit or kd[0]
     H = spec.height if spec.height is not None else float(rng.uniform(0.35, 1.0))
     L = int(spec.leaves)
-    leaf_len = spec.leaf_length or float(rng.uniform(*kd[1]))
+    leaf_len = spec.leaf_length or float(rng.uniform(*kd[1])) * float(np.clip((H / 0.6) ** 0.5, 0.8, 1.3))
     # leaf length vs plant height: keep a plant plausible (leaves not longer than ~45 % of H)
     leaf_len = min(leaf_len, 0.45 * H)
     pet_ratio = spec.petiole_ratio if spec.petiole_ratio is not None else float(rng.uniform(*kd[2]))
@@ -493,11 +497,18 @@ def _build(spec: PlantSpec, rng: np.random.Generator):
         pl.node = p
         pal = np.array(spec.palette if spec.palette is not None else kd[3])
         front = np.clip(pal * np.exp(rng.normal(0, 0.08, 3)) * float(np.exp(rng.normal(0, 0.1))), 0, 1)
+        if young < 1.0:  # young leaves at the top: lighter, yellower
+            front = np.clip(front + (1.0 - young) * 1.2 * (np.array([0.45, 0.6, 0.15]) - front), 0, 1)
         # the abaxial side: lighter, duller, a little grey-blue
         back = np.clip(0.5 * front + 0.5 * np.array([0.50, 0.60, 0.45]) * (0.8 + front.mean()), 0, 1)
         width = float(np.ptp(outline.poly[:, 1])) * length
         pet_r = float(np.clip(width * rng.uniform(0.025, 0.045), 0.001, 0.0035))
-        leaves.append(_Leaf(sheet=sheet, place=pl, label=j + 1, colour_front=front,
+        hole = None
+        if rng.uniform() < spec.holes:
+            k = int(rng.integers(len(outline.poly)))
+            c2 = outline.centre + rng.uniform(0.5, 0.9) * (outline.poly[k] - outline.centre)
+            hole = (c2, float(rng.uniform(0.08, 0.18)) * float(np.ptp(outline.poly[:, 1]) + 0.3) / 1.3)
+        leaves.append(_Leaf(sheet=sheet, place=pl, label=j + 1, colour_front=front, hole=hole,
                             colour_back=back, density=float(np.exp(rng.normal(0, 0.25))),
                             back_fraction=float(rng.uniform(0.25, 0.5)),
                             vein_phase=float(rng.uniform(0, 1)),
@@ -507,8 +518,15 @@ def _build(spec: PlantSpec, rng: np.random.Generator):
 
 # ---- overlap construction and collision avoidance ------------------------------------------
 
-def _min_dist(a: np.ndarray, tree: cKDTree) -> float:
-    return float(tree.query(a, k=1)[0].min())
+def _min_dist(a: np.ndarray, tree: cKDTree, upper: float = 0.03) -> float:
+    """Smallest distance from points ``a`` to ``tree``'s points, capped at ``upper`` (metres)."""
+    lo, hi = tree.mins - upper, tree.maxes + upper
+    if np.any(a.min(0) > hi) or np.any(a.max(0) < lo):
+        return upper
+    inside = np.all((a >= lo) & (a <= hi), axis=1)
+    if not inside.any():
+        return upper
+    return float(min(upper, tree.query(a[inside], k=1, distance_upper_bound=upper)[0].min()))
 
 
 def _place_pairs(leaves: list[_Leaf], axes, spec: PlantSpec, rng) -> list[tuple[int, int, int]]:
@@ -525,6 +543,11 @@ def _place_pairs(leaves: list[_Leaf], axes, spec: PlantSpec, rng) -> list[tuple[
     cands = [(order[i], order[i + 1]) for i in range(len(order) - 1)
              if leaves[order[i]].place.axis == leaves[order[i + 1]].place.axis]
     rng.shuffle(cands)
+    # fallbacks: next-but-one leaves on the same axis
+    more = [(order[i], order[i + 2]) for i in range(len(order) - 2)
+            if leaves[order[i]].place.axis == leaves[order[i + 2]].place.axis]
+    rng.shuffle(more)
+    cands += more
     out = []
     fixed: list[int] = []
     for a, b in cands:
@@ -616,14 +639,14 @@ def _avoid_collisions(leaves: list[_Leaf], axes: list[Axis], pairs, rng, min_gap
     stem_r = np.concatenate([a.radius for a in axes])
     stem_tree = cKDTree(stem_pts)
     worlds = [lf.world() for lf in leaves]
-    trees = [cKDTree(w[::2]) for w in worlds]
+    trees = [cKDTree(w[::3]) for w in worlds]
 
     def clearance(i, w):
         d = np.inf
         for k in range(len(leaves)):
             if k == i or leaves[k].label in partner.get(leaves[i].label, ()):
                 continue
-            d = min(d, float(trees[k].query(w[::3], k=1, distance_upper_bound=min_gap * 4)[0].min()))
+            d = min(d, _min_dist(w[::5], trees[k], upper=min_gap * 2))
         # blades must also clear the stems (but may start right at their own node)
         far = np.linalg.norm(w - leaves[i].place.node, axis=1) > 0.03
         if far.any():
@@ -650,7 +673,7 @@ def _avoid_collisions(leaves: list[_Leaf], axes: list[Axis], pairs, rng, min_gap
                     break
             _, pl.az, pl.el_blade, pl.el_pet = best
             worlds[i] = leaf.world()
-            trees[i] = cKDTree(worlds[i][::2])
+            trees[i] = cKDTree(worlds[i][::3])
             moved = True
         if not moved:
             break
@@ -680,6 +703,9 @@ def _sample_leaf(leaf: _Leaf, n: int, rng, glossy: float, sh_rest: int):
     # uneven density: smooth blotches, sparser towards the margin
     dens = np.exp(0.55 * _smooth_noise(cen2, rng, 5, 0.5))
     dens *= 0.35 + 0.65 * np.clip((1.0 - rad_c) / 0.3, 0, 1) ** 0.7
+    if leaf.hole is not None:  # an occluded / badly reconstructed patch: almost no Gaussians
+        c2, r2 = leaf.hole
+        dens *= np.where(np.linalg.norm(cen2 - c2, axis=1) < r2, 0.03, 1.0)
     w = area * dens
     fi = rng.choice(len(F), size=n, p=w / w.sum())
     r1, r2 = rng.uniform(size=n), rng.uniform(size=n)
@@ -889,7 +915,11 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
         clumps = ctr + rng.uniform(-1.1, 1.1, (max(1, n2 // 12), 3)) * ext
         p2 = clumps[rng.integers(0, len(clumps), n2)] + rng.normal(0, 0.01, (n2, 3))
         pf = np.vstack([p1, p2])
-        pf[:, 2] = np.clip(pf[:, 2], 0.01 * hi[2], 0.97 * hi[2])
+        # keep floaters within the plant's height range (reflect, don't pile them on a plane)
+        zlo, zhi = 0.01 * hi[2], 0.97 * hi[2]
+        z = np.abs(pf[:, 2] - zlo)
+        z = np.mod(z, 2 * (zhi - zlo))
+        pf[:, 2] = zlo + np.where(z > zhi - zlo, 2 * (zhi - zlo) - z, z)
         scf = np.exp(rng.normal(np.log(0.004), 0.6, (n_float, 3)))
         parts_pos.append(pf); parts_sc.append(scf)
         parts_R.append(np.stack([_random_rotation(rng) for _ in range(n_float)]))
@@ -1048,6 +1078,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--habit", choices=HABITS)
     p.add_argument("--height", type=float, help="approximate plant height, metres")
     p.add_argument("--floaters", type=float, help="fraction of floater Gaussians (default 0.003)")
+    p.add_argument("--holes", type=float, help="fraction of leaves with a sparse patch (default 0.15)")
     p.add_argument("--no-global-frame", action="store_true", help="write the canonical frame (no random similarity)")
     p.add_argument("--out", default=".", help="output directory")
     p.add_argument("--name", help="file stem (default: preset or kind + seed)")
@@ -1069,7 +1100,8 @@ def main(argv=None) -> int:
         over = {k: v for k, v in dict(
             kind=args.kind, leaves=args.leaves, gaussians=args.gaussians, overlap=args.overlap,
             sh_degree=args.sh_degree, shape=args.shape, serration=args.serration,
-            habit=args.habit, height=args.height, floaters=args.floaters).items() if v is not None}
+            habit=args.habit, height=args.height, floaters=args.floaters,
+            holes=args.holes).items() if v is not None}
         if args.no_global_frame:
             over["global_frame"] = False
         try:

@@ -122,6 +122,28 @@ def test_mesh_distance_check_fails_on_wrong_labels(small):
     assert _mesh_distance(cloud, wrong, np.random.default_rng(0)) > MESH_DIST_REL
 
 
+def test_leaf_gaussians_are_flat_and_follow_the_surface(small):
+    """The smallest scale axis of blade Gaussians is the GT mesh normal; it is much smaller."""
+    cloud, gt = small
+    rng = np.random.default_rng(2)
+    idx = rng.choice(np.flatnonzero(gt.labels > 0), 2000, replace=False)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(gt.leaf_vertices), o3d.core.Tensor(gt.leaf_faces.astype(np.uint32)))
+    ans = scene.compute_closest_points(o3d.core.Tensor(cloud.means[idx]))
+    normal = ans["primitive_normals"].numpy().astype(np.float64)
+    R = cloud.rotation_matrices()[idx].astype(np.float64)
+    sc = cloud.scales[idx]
+    smallest = np.argmin(sc, axis=1)
+    assert np.all(smallest == 2)  # convention of the generator: third axis = normal
+    axis = R[np.arange(len(idx)), :, smallest]
+    cos = np.abs(np.einsum("nd,nd->n", axis, normal))
+    assert np.median(cos) > 0.97 and np.mean(cos > 0.8) > 0.95
+    assert np.median(sc[:, 2] / sc[:, 0]) < 0.15
+    # stem Gaussians are elongated along the stem: largest scale first, >1.5x the second
+    st = cloud.scales[gt.labels == 0]
+    assert np.median(st[:, 0] / st[:, 1]) > 1.5
+
+
 def _petiole_diameter(points: np.ndarray) -> float:
     """Diameter of a tube's point cloud from a slab across its middle (input units)."""
     c = points.mean(0)
