@@ -33,6 +33,7 @@ from __future__ import annotations
 import base64
 import hmac
 import ipaddress
+import json
 import logging
 import secrets
 import threading
@@ -197,7 +198,13 @@ def create_app(session: ViewerSession, token: str, max_body: int = MAX_BODY, on_
         return jsonify(error=str(e)), 400
 
     def body() -> dict:
-        data = request.get_json(silent=True)  # raises 413 past MAX_CONTENT_LENGTH
+        raw = request.get_data(cache=False)  # 413 past MAX_CONTENT_LENGTH when the length is declared
+        if len(raw) >= max_body:  # a chunked body is cut at the limit by werkzeug: refuse it too
+            abort(413)
+        try:
+            data = json.loads(raw)
+        except ValueError:
+            data = None
         if not isinstance(data, dict):
             abort(400, "expected a JSON object")
         return data

@@ -111,8 +111,17 @@ def test_api_pick_preview_op_undo_save(client, served, plant):
 
 
 def test_real_socket_is_loopback_only(served):
+    import http.client
+
     server = ViewerServer(served[0], port=0).start_background()
     try:
+        # an oversized chunked body (no Content-Length) is refused as well
+        conn = http.client.HTTPConnection("127.0.0.1", server.port, timeout=10)
+        chunks = [b'{"op": {"op": "brush", "centers": ['] + [b"1," * 1000] * (MAX_BODY // 2000 + 4) + [b"1]}}"]
+        conn.request("POST", f"/{server.token}/api/preview", body=iter(chunks), encode_chunked=True,
+                     headers={"Content-Type": "application/json", "Transfer-Encoding": "chunked"})
+        assert conn.getresponse().status == 413
+        conn.close()
         host, port = server._server.server_address[:2]
         assert host == "127.0.0.1" and port > 0 and server.url.startswith(f"http://127.0.0.1:{port}/")
         assert len(server.token) >= 32
