@@ -1,0 +1,533 @@
+"""Leaf registration (LeafFit Sec. "Leaf Registration using Moving Least Squares").
+
+Per plant, in the working frame (root at origin, +Z up, height 1):
+
+1. **Denoise** each leaf's Gaussian centres (``fit.denoise``: MLS projection on local planes,
+   outliers removed).
+2. **Leaf frames** (``geometry.pca.leaf_frame``): origin at the petiole base, +X base -> apex in
+   the principal plane, +Z the normal to the upper side. Each leaf gets a uniform **scale**
+   ``s_j = size_j / size_template`` (size = RMS distance of the points from their centroid in the
+   leaf plane), so its points in *template units* are ``R_j^T (x - base_j) / s_j``.
+3. **Template**: ``params.template`` (a leaf label) or ``"auto"``: among the leaves that are not
+   degenerate and whose size lies within the middle half (25th-75th percentile) of the leaf sizes,
+   the one with the highest ``symmetry * fill * min(1, density / median density)``:
+   *symmetry* = min/max of the blade area left and right of the midrib (a torn or half-occluded
+   leaf is asymmetric), *fill* = occupied fraction of the convex hull of the points in the leaf
+   plane (holes, missing bites), *density* = Gaussians per unit area (how well it was observed).
+   Ties go to the size closest to the median, then the lowest label.
+4. **Control points**: farthest point sampling of K template points (``p``) and K points of each
+   target leaf; the initial one-to-one correspondence ``q0`` minimises the summed squared distance
+   in the aligned frames (Jonker-Volgenant, ``scipy.optimize.linear_sum_assignment``).
+5. **Optimisation** (``params.optimize``): the target control points of all leaves at once
+   (independent problems; Adam is per-coordinate, so batching does not couple them) minimise
+   ``L_depth + lam * L_chamfer`` with Adam (lr 7e-3, 200 steps), as the paper:
+   * ``L_depth``: mean squared difference of the depth maps (``splats.render``, orthographic, in
+     the target's PCA-aligned view, looking down its -Z) of the deformed template Gaussians and of
+     the target Gaussians, over the pixels where both are foreground (alpha > 0.5);
+   * ``L_chamfer``: symmetric Chamfer distance with squared distances (paper Eq.), template units.
+   The template's MLS weights (``fit.mls``, affine) are precomputed once: the deformed centres
+   are ``A @ q`` and each deformed Gaussian's covariance is ``J cov J^T`` with the MLS Jacobian
+   ``J = sum_k q_k (dA_k/dv)^T`` (also linear in q). For speed, each leaf is represented by at
+   most ``max_points`` Gaussians (farthest point sampling), widened in its plane by the sampling
+   spacing so the subset still covers the blade; template and target are treated alike.
+6. **Degenerate leaves** (fewer than K Gaussians after denoising, collinear, a size ratio to the
+   template beyond ``max_scale_ratio``, or a non-finite result) get a warning and the rigid fit:
+   ``targets = p`` (identity MLS) with the leaf's frame and scale. Never NaN.
+
+Timing (2 shared cores, noisy): see ``benchmarks/deformation.py``.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import ConvexHull, cKDTree
+
+from leaffit_usd.errors import ParameterError
+from leaffit_usd.fit.denoise import DenoiseParams, denoise_leaf
+from leaffit_usd.fit.mls import DEFAULT_REG, mls_weights
+from leaffit_usd.fit.result import LeafFits
+from leaffit_usd.geometry.pca import leaf_frame, pca
+from leaffit_usd.geometry.sampling import farthest_point_sampling
+from leaffit_usd.segment.result import Segmentation
+from leaffit_usd.splats.cloud import GaussianCloud
+from leaffit_usd.splats.render import render_orthographic
+
+log = logging.getLogger("leaffit_usd")
+
+
+@dataclass
+class FitParams:
+    """Registration parameters (paper defaults; working units).
+
+    K : control points per leaf (32); steps, lr : Adam iterations (200) and learning rate (7e-3)
+    lam : Chamfer weight lambda (0.7); sigma : MLS kernel width (0.1); reg : MLS regulariser
+    template : "auto" or a leaf label (int or digit string)
+    optimize : False = initial correspondence only (the paper's "w/o optim." ablation)
+    seed : torch/numpy seed (the method itself is deterministic)
+    image_size : side of each leaf's square depth image, pixels
+    max_points : Gaussians per leaf used in the optimisation (farthest point sampling)
+    max_scale_ratio : a leaf more than this many times larger (or smaller) than the template is
+        treated as degenerate (likely a merged segment) and fitted rigidly
+    denoise : ``DenoiseParams`` (its sigma follows ``sigma``, the paper uses the same value)
+    """
+
+    K: int = 32
+    steps: int = 200
+    lr: float = 7e-3
+    lam: float = 0.7
+    sigma: float = 0.1
+    reg: float = DEFAULT_REG
+    template: str | int = "auto"
+    optimize: bool = True
+    seed: int = 0
+    image_size: int = 48
+    max_points: int = 1024
+    max_scale_ratio: float = 4.0
+    denoise: DenoiseParams = field(default_factory=DenoiseParams)
+
+    def validate(self) -> None:
+        for name, lo in (("K", 1), ("steps", 0), ("image_size", 8), ("max_points", 16)):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < lo:
+                raise ParameterError(name, f"an integer >= {lo}", v)
+        for name in ("lr", "sigma", "max_scale_ratio"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise ParameterError(name, "a positive number", v)
+        if not (np.isfinite(self.lam) and self.lam >= 0):
+            raise ParameterError("lam", "a number >= 0", self.lam)
+        if self.max_scale_ratio < 1:
+            raise ParameterError("max_scale_ratio", "a number >= 1", self.max_scale_ratio)
+        t = self.template
+        if not (t == "auto" or isinstance(t, (int, np.integer)) and not isinstance(t, bool)
+                or isinstance(t, str) and t.strip().isdigit()):
+            raise ParameterError("template", "'auto' or a leaf label (1..L)", t)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["template"] = self.template if isinstance(self.template, str) else int(self.template)
+        return d
+
+
+@dataclass
+class _Leaf:
+    label: int
+    gaussians: np.ndarray          # (M,) indices of kept (denoised) Gaussians
+    local: np.ndarray              # (M, 3) denoised centres, leaf local frame, leaf units (unscaled)
+    frame: np.ndarray              # (4, 4) rigid local -> working
+    size: float
+    degenerate: str = ""           # reason, "" if fine
+    scale: float = 1.0
+
+
+# ---------------------------------------------------------------------------------------------
+# public entry point
+# ---------------------------------------------------------------------------------------------
+
+def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
+               params: FitParams = FitParams()) -> LeafFits:
+    """Register one template leaf to every leaf of a plant.
+
+    cloud_working : GaussianCloud, working frame (root at origin, +Z up, height 1)
+    seg : Segmentation of that cloud (labels 1..L; ``leaf_base`` / ``leaf_tip`` Gaussian indices
+        give each leaf's petiole base and apex; when absent, the leaf point nearest to / farthest
+        from the root along ``seg.dist_root`` (or Euclidean from the origin) is used)
+    Returns ``LeafFits`` (targets in template units, instance local frame; see its docstring).
+    """
+    params.validate()
+    t0 = time.perf_counter()
+    torch.manual_seed(params.seed)
+    n_leaves = seg.n_leaves
+    if len(seg.labels) != len(cloud_working):
+        raise ParameterError("seg.labels", f"{len(cloud_working)} labels (one per Gaussian)",
+                             len(seg.labels))
+    means = np.asarray(cloud_working.means, np.float64)
+    covs = cloud_working.covariances().astype(np.float64)
+    opac = cloud_working.opacities.astype(np.float64)
+    dn = DenoiseParams(**{**asdict(params.denoise), "sigma": params.sigma})
+
+    leaves = [_prepare_leaf(l, means, seg, dn) for l in range(1, n_leaves + 1)]
+    for lf in leaves:
+        if not lf.degenerate and len(lf.local) < params.K:
+            lf.degenerate = f"{len(lf.local)} Gaussians after denoising, fewer than K={params.K}"
+    if n_leaves == 0:
+        log.warning("fit: the segmentation has no leaves; nothing to fit")
+        return _empty_fits(params)
+
+    tmpl = _choose_template(leaves, params)
+    T = leaves[tmpl - 1]
+    for lf in leaves:
+        lf.scale = float(np.clip(lf.size / T.size, 1e-3, 1e3)) if lf.size > 0 and T.size > 0 else 1.0
+        if not lf.degenerate and lf.label != tmpl and not (
+                1.0 / params.max_scale_ratio <= lf.scale <= params.max_scale_ratio):
+            lf.degenerate = (f"size ratio {lf.scale:.2f} to the template leaf {tmpl} is beyond "
+                             f"max_scale_ratio={params.max_scale_ratio:g}")
+    for lf in leaves:
+        if lf.degenerate:
+            log.warning("fit: leaf %d is degenerate (%s); using a rigid fit", lf.label, lf.degenerate)
+
+    # template control points
+    P_all = T.local                                            # template units (scale 1)
+    pidx = farthest_point_sampling(P_all, params.K, start=_start_index(P_all))
+    p = P_all[pidx]
+    K = len(p)
+    if K < params.K:
+        log.warning("fit: template leaf %d has only %d distinct points; using K=%d", tmpl, K, K)
+
+    L = n_leaves
+    targets = np.repeat(p[None].astype(np.float64), L, axis=0)
+    fallback = np.array([bool(lf.degenerate) for lf in leaves])
+    init_ok = []
+    for j, lf in enumerate(leaves):
+        if lf.degenerate or lf.label == tmpl:
+            continue
+        Q = lf.local / lf.scale
+        cidx = farthest_point_sampling(Q, K, start=_start_index(Q))
+        c = Q[cidx]
+        if len(c) < K:
+            lf.degenerate = f"only {len(c)} distinct points"
+            fallback[j] = True
+            log.warning("fit: leaf %d is degenerate (%s); using a rigid fit", lf.label, lf.degenerate)
+            continue
+        cost = ((p[:, None, :] - c[None, :, :]) ** 2).sum(-1)
+        rows, cols = linear_sum_assignment(cost)
+        targets[j, rows] = c[cols]
+        init_ok.append(j)
+
+    if params.optimize and params.steps > 0 and init_ok:
+        opt = _optimize(T, [leaves[j] for j in init_ok], p, targets[init_ok], means, covs, opac,
+                        params)
+        targets[init_ok] = opt
+
+    bad = ~np.isfinite(targets).all(axis=(1, 2))
+    for j in np.flatnonzero(bad):
+        log.warning("fit: leaf %d gave a non-finite fit; using a rigid fit", leaves[j].label)
+        targets[j] = p
+        fallback[j] = True
+
+    errors = np.zeros(L, np.float32)
+    A_full = mls_weights(p, P_all, params.sigma, params.reg)
+    for j, lf in enumerate(leaves):
+        if len(lf.local) == 0:
+            continue
+        deformed = A_full @ targets[j]
+        errors[j] = lf.scale * _chamfer_mean(deformed, lf.local / lf.scale)
+
+    l2w = np.stack([lf.frame @ np.diag([lf.scale, lf.scale, lf.scale, 1.0]) for lf in leaves])
+    info = params.to_dict()
+    info["time_s"] = round(time.perf_counter() - t0, 3)
+    info["degenerate"] = {str(lf.label): lf.degenerate for lf in leaves if lf.degenerate}
+    info["template_rule"] = "auto" if params.template == "auto" else "user"
+    log.info("fit: %d leaves, template %d, %d rigid fallbacks, %.1f s", L, tmpl,
+             int(fallback.sum()), info["time_s"])
+    return LeafFits(
+        template_label=int(tmpl),
+        template_points=P_all.astype(np.float32),
+        template_gaussians=T.gaussians.astype(np.int64),
+        template_controls=p.astype(np.float32),
+        leaf_labels=np.arange(1, L + 1, dtype=np.int32),
+        targets=targets.astype(np.float32),
+        leaf_to_working=l2w,
+        errors=errors,
+        fallback=fallback,
+        sigma=float(params.sigma),
+        reg=float(params.reg),
+        params=info,
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# preparation
+# ---------------------------------------------------------------------------------------------
+
+def _start_index(points: np.ndarray) -> int:
+    """FPS start: the point nearest to the local origin (the petiole base): deterministic and
+    comparable across leaves."""
+    return int(np.argmin((np.asarray(points) ** 2).sum(1))) if len(points) else 0
+
+
+def _prepare_leaf(label: int, means: np.ndarray, seg: Segmentation, dn: DenoiseParams) -> _Leaf:
+    idx = seg.leaf_indices(label)
+    if len(idx) == 0:
+        return _Leaf(label, idx.astype(np.int64), np.zeros((0, 3)), np.eye(4), 0.0,
+                     "no Gaussians in the segmentation")
+    pts = means[idx]
+    base, apex = _base_apex(label, idx, means, seg)
+    res = denoise_leaf(pts, dn)
+    kept = idx[res.keep]
+    dpts = res.points
+    frame = leaf_frame(dpts if len(dpts) else pts, base, apex)
+    local = (dpts - frame[:3, 3]) @ frame[:3, :3]
+    reason = ""
+    if len(dpts) >= 3:
+        var = pca(dpts).variances
+        if var[1] < 1e-4 * max(var[0], 1e-300):
+            reason = "collinear Gaussians (no leaf plane)"
+        size = float(np.sqrt(max(var[0] + var[1], 0.0)))
+    else:
+        size = 0.0
+        reason = f"only {len(dpts)} Gaussians"
+    if not np.isfinite(local).all():
+        reason = "non-finite positions"
+        local = np.zeros((0, 3))
+    return _Leaf(label, kept.astype(np.int64), local, frame, size, reason)
+
+
+def _base_apex(label, idx, means, seg):
+    L = seg.n_leaves
+    if len(seg.leaf_base) == L and len(seg.leaf_tip) == L and L > 0:
+        return means[int(seg.leaf_base[label - 1])], means[int(seg.leaf_tip[label - 1])]
+    if len(seg.dist_root) == len(means):
+        d = np.asarray(seg.dist_root, np.float64)[idx]
+    else:
+        d = np.linalg.norm(means[idx], axis=1)
+    return means[idx[int(np.argmin(d))]], means[idx[int(np.argmax(d))]]
+
+
+def _shape_scores(lf: _Leaf):
+    """(symmetry, fill, density) of a leaf in its plane (see the module doc)."""
+    xy = lf.local[:, :2]
+    try:
+        hull = ConvexHull(xy)
+        area = float(hull.volume)
+    except Exception:  # noqa: BLE001 - qhull raises on flat/degenerate input
+        return 0.0, 0.0, 0.0
+    if area <= 0:
+        return 0.0, 0.0, 0.0
+    g = 24
+    lo, hi = xy.min(0), xy.max(0)
+    cell = np.maximum((hi - lo) / g, 1e-12)
+    ij = np.minimum(((xy - lo) / cell).astype(int), g - 1)
+    occ = np.zeros((g, g), bool)
+    occ[ij[:, 0], ij[:, 1]] = True
+    cx = lo[0] + (np.arange(g) + 0.5) * cell[0]
+    cy = lo[1] + (np.arange(g) + 0.5) * cell[1]
+    X, Y = np.meshgrid(cx, cy, indexing="ij")
+    eq = hull.equations
+    inside = (np.stack([X.ravel(), Y.ravel()], 1) @ eq[:, :2].T + eq[:, 2] <= 1e-12).all(1)
+    inside = inside.reshape(g, g)
+    fill = float((occ & inside).sum() / max(inside.sum(), 1))
+    cell_area = float(cell[0] * cell[1])
+    left = float((occ & (Y > 0)).sum()) * cell_area
+    right = float((occ & (Y < 0)).sum()) * cell_area
+    sym = min(left, right) / max(left, right, 1e-300)
+    return sym, fill, len(xy) / area
+
+
+def _choose_template(leaves: list[_Leaf], params: FitParams) -> int:
+    L = len(leaves)
+    if params.template != "auto":
+        lab = int(params.template)
+        if not 1 <= lab <= L:
+            raise ParameterError("template", f"a leaf label in 1..{L} or 'auto'", params.template)
+        if leaves[lab - 1].degenerate:
+            raise ParameterError("template", "a leaf that is not degenerate "
+                                 f"(leaf {lab}: {leaves[lab - 1].degenerate})", params.template)
+        return lab
+    ok = [lf for lf in leaves if not lf.degenerate]
+    if not ok:
+        best = max(leaves, key=lambda lf: (len(lf.local), -lf.label))
+        log.warning("fit: every leaf is degenerate; leaf %d (most Gaussians) is the template",
+                    best.label)
+        return best.label
+    sizes = np.array([lf.size for lf in ok])
+    q1, q3 = np.percentile(sizes, [25, 75])
+    med = float(np.median(sizes))
+    cand = [lf for lf in ok if q1 - 1e-12 <= lf.size <= q3 + 1e-12] or ok
+    scores = {lf.label: _shape_scores(lf) for lf in cand}
+    dens_med = float(np.median([s[2] for s in scores.values()])) or 1.0
+    def key(lf):
+        sym, fill, dens = scores[lf.label]
+        return (-(sym * fill * min(1.0, dens / dens_med)), abs(lf.size - med), lf.label)
+    best = min(cand, key=key)
+    log.info("fit: template leaf %d (auto: symmetry %.2f, fill %.2f, size %.3f, median %.3f)",
+             best.label, scores[best.label][0], scores[best.label][1], best.size, med)
+    return best.label
+
+
+def _chamfer_mean(a: np.ndarray, b: np.ndarray) -> float:
+    """Symmetric Chamfer distance, mean of Euclidean nearest-neighbour distances both ways / 2."""
+    if len(a) == 0 or len(b) == 0:
+        return 0.0
+    da, _ = cKDTree(b).query(a, k=1)
+    db, _ = cKDTree(a).query(b, k=1)
+    return 0.5 * (float(da.mean()) + float(db.mean()))
+
+
+def _empty_fits(params: FitParams) -> LeafFits:
+    K = params.K
+    return LeafFits(0, np.zeros((0, 3), np.float32), np.zeros(0, np.int64),
+                    np.zeros((K, 3), np.float32), np.zeros(0, np.int32),
+                    np.zeros((0, K, 3), np.float32), np.zeros((0, 4, 4)), np.zeros(0, np.float32),
+                    np.zeros(0, bool), float(params.sigma), float(params.reg), params.to_dict())
+
+
+# ---------------------------------------------------------------------------------------------
+# optimisation
+# ---------------------------------------------------------------------------------------------
+
+def _subset(lf: _Leaf, n: int, covs_working: np.ndarray, opac: np.ndarray):
+    """At most n of the leaf's Gaussians (FPS), template units, leaf local frame: centres (n, 3),
+    covariances (n, 3, 3) widened in-plane by the sampling spacing, opacities (n,)."""
+    Q = lf.local / lf.scale
+    sel = farthest_point_sampling(Q, n, start=_start_index(Q)) if len(Q) > n else np.arange(len(Q))
+    R = lf.frame[:3, :3]
+    cov = np.einsum("ji,njk,kl->nil", R, covs_working[lf.gaussians[sel]], R) / lf.scale**2
+    pts = Q[sel]
+    if len(sel) < len(Q):
+        # spacing of the subset: median nearest-neighbour distance; fill the in-plane gaps
+        d, _ = cKDTree(pts).query(pts, k=2)
+        h = float(np.median(d[:, 1]))
+        cov = cov + np.diag([1.0, 1.0, 0.0]) * (0.5 * h) ** 2
+    return pts, cov, opac[lf.gaussians[sel]]
+
+
+def _mls_jacobian_weights(p: np.ndarray, v: np.ndarray, sigma: float, reg: float) -> np.ndarray:
+    """dA/dv : (V, K, 3) float64 by central differences of ``mls_weights`` (step 1e-4 sigma)."""
+    h = 1e-4 * sigma
+    out = np.empty((len(v), len(p), 3))
+    for a in range(3):
+        e = np.zeros(3)
+        e[a] = h
+        out[:, :, a] = (mls_weights(p, v + e, sigma, reg) - mls_weights(p, v - e, sigma, reg)) / (2 * h)
+    return out
+
+
+def _optimize(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray, means, covs, opac,
+              params: FitParams) -> np.ndarray:
+    """Adam on the target control points of ``leaves`` (B of them) at once. Returns (B, K, 3)."""
+    dt = torch.float32
+    B, K = len(leaves), len(p)
+    S = int(-(-params.image_size // 16) * 16)      # slots aligned to every tile size
+    X, Xcov, Xop = _subset(T, params.max_points, covs, opac)
+    A = torch.tensor(mls_weights(p, X, params.sigma, params.reg), dtype=dt)          # (M, K)
+    dA = torch.tensor(_mls_jacobian_weights(p, X, params.sigma, params.reg), dtype=dt)  # (M, K, 3)
+    Xcov_t = torch.tensor(Xcov, dtype=dt)
+    Xop_t = torch.tensor(Xop, dtype=dt)
+    M = len(X)
+
+    # targets: Chamfer points, depth maps, per-leaf pixel frames
+    tgt_pts, tgt_n, pix = [], [], []
+    all_m, all_c, all_o = [], [], []
+    for b, lf in enumerate(leaves):
+        Y, Ycov, Yop = _subset(lf, params.max_points, covs, opac)
+        tgt_pts.append(Y)
+        tgt_n.append(len(Y))
+        lo, hi = Y[:, :2].min(0), Y[:, :2].max(0)
+        ctr = 0.5 * (lo + hi)
+        px = max(float((hi - lo).max()) * 1.2 / S, 1e-9)   # 10 % margin each side
+        org = ctr - 0.5 * S * px                            # (xmin, ymin) of this leaf's image
+        pix.append((org, px))
+        m, c = _to_atlas(torch.tensor(Y, dtype=dt), torch.tensor(Ycov, dtype=dt), org, px, b, S)
+        all_m.append(m)
+        all_c.append(c)
+        all_o.append(torch.tensor(Yop, dtype=dt))
+    with torch.no_grad():
+        ones = torch.ones(sum(tgt_n), 1, dtype=dt)
+        tr = render_orthographic(torch.cat(all_m), torch.cat(all_c), ones, torch.cat(all_o),
+                                 B * S, S, (0.0, float(B * S), 0.0, float(S)))
+    d_tgt = tr.depth
+    fg_tgt = tr.alpha > 0.5
+    nmax = max(tgt_n)
+    Ypad = torch.zeros(B, nmax, 3, dtype=dt)
+    ymask = torch.zeros(B, nmax, dtype=dt)
+    for b, Y in enumerate(tgt_pts):
+        Ypad[b, :len(Y)] = torch.tensor(Y, dtype=dt)
+        Ypad[b, len(Y):] = torch.tensor(Y[0], dtype=dt)
+        ymask[b, :len(Y)] = 1.0
+    ycount = ymask.sum(1)
+    tgt_trees = [cKDTree(Y) for Y in tgt_pts]
+
+    orgs = torch.tensor(np.stack([o for o, _ in pix]), dtype=dt)         # (B, 2)
+    pxs = torch.tensor([s for _, s in pix], dtype=dt)                     # (B,)
+    offs = torch.arange(B, dtype=dt) * S
+
+    q = torch.tensor(q0, dtype=dt, requires_grad=True)
+    optim = Adam(q, lr=params.lr)
+    op_rep = Xop_t.repeat(B)
+    ones = torch.ones(B * M, 1, dtype=dt)
+    bounds = (0.0, float(B * S), 0.0, float(S))
+    for step in range(params.steps):
+        q.grad = None
+        Xd = torch.einsum("mk,bkc->bmc", A, q)                              # (B, M, 3)
+        J = torch.einsum("bka,mkc->bmac", q, dA)                             # (B, M, 3, 3)
+        cov_d = J @ Xcov_t[None] @ J.transpose(-1, -2)
+        # atlas (pixel) coordinates for the whole batch
+        sc = (1.0 / pxs)[:, None]
+        mx = (Xd[..., 0] - orgs[:, None, 0]) * sc + offs[:, None]
+        my = (Xd[..., 1] - orgs[:, None, 1]) * sc
+        m_atlas = torch.stack([mx, my, Xd[..., 2]], -1).reshape(-1, 3)
+        D = torch.diag_embed(torch.stack([sc.expand(B, 1)[:, 0], sc[:, 0],
+                                          torch.ones(B, dtype=dt)], -1))       # (B, 3, 3)
+        c_atlas = (D[:, None] @ cov_d @ D[:, None]).reshape(-1, 3, 3)
+        r = render_orthographic(m_atlas, c_atlas, ones, op_rep, B * S, S, bounds)
+        omega = (fg_tgt & (r.alpha > 0.5)).to(dt)
+        diff = (r.depth - d_tgt) ** 2 * omega
+        # per-leaf mean over its foreground pixels, summed over leaves
+        per_leaf_px = omega.reshape(S, B, S).sum((0, 2)).clamp_min(1.0)
+        l_depth = (diff.reshape(S, B, S).sum((0, 2)) / per_leaf_px).sum()
+        # Chamfer: nearest neighbours found exactly (kd-trees, no grad); the loss through the
+        # gathered pairs has the same value and gradient as min over all pairs
+        nn_t, nn_j = _nearest_pairs(Xd.detach().numpy(), tgt_pts, tgt_trees)
+        l_t = ((Xd - torch.gather(Ypad, 1, nn_t[..., None].expand(-1, -1, 3))) ** 2).sum(-1).mean(1)
+        l_j = (((torch.gather(Xd, 1, nn_j[..., None].expand(-1, -1, 3)) - Ypad) ** 2).sum(-1)
+               * ymask).sum(1) / ycount
+        l_cham = (l_t + l_j).sum()
+        loss = l_depth + params.lam * l_cham
+        loss.backward()
+        optim.step()
+        if not torch.isfinite(q).all():
+            break
+    return q.detach().double().numpy()
+
+
+class Adam:
+    """Adam (Kingma & Ba 2015) on one tensor, the update of ``torch.optim.Adam`` with its defaults
+    (betas 0.9/0.999, eps 1e-8, no weight decay), written out because constructing
+    ``torch.optim.Adam`` imports torch._dynamo (~2 s of CPU per process). Tested equal to it."""
+
+    def __init__(self, param, lr: float, betas=(0.9, 0.999), eps: float = 1e-8):
+        self.p, self.lr, self.b1, self.b2, self.eps = param, lr, betas[0], betas[1], eps
+        self.m = torch.zeros_like(param)
+        self.v = torch.zeros_like(param)
+        self.t = 0
+
+    @torch.no_grad()
+    def step(self) -> None:
+        g = self.p.grad
+        self.t += 1
+        self.m.mul_(self.b1).add_(g, alpha=1 - self.b1)
+        self.v.mul_(self.b2).addcmul_(g, g, value=1 - self.b2)
+        bc1 = 1 - self.b1 ** self.t
+        bc2 = 1 - self.b2 ** self.t
+        denom = (self.v.sqrt() / math.sqrt(bc2)).add_(self.eps)
+        self.p.addcdiv_(self.m, denom, value=-self.lr / bc1)
+
+
+def _nearest_pairs(X: np.ndarray, tgt_pts: list, tgt_trees: list):
+    """Nearest-neighbour indices both ways. X : (B, M, 3) deformed template points; tgt_pts[b] :
+    (n_b, 3). Returns nn_t (B, M) index into target b, nn_j (B, nmax) index into X[b] (0 for
+    padding rows)."""
+    B, M = X.shape[:2]
+    nmax = max(len(y) for y in tgt_pts)
+    nn_t = np.empty((B, M), np.int64)
+    nn_j = np.zeros((B, nmax), np.int64)
+    for b in range(B):
+        nn_t[b] = tgt_trees[b].query(X[b], k=1)[1]
+        nn_j[b, :len(tgt_pts[b])] = cKDTree(X[b]).query(tgt_pts[b], k=1)[1]
+    return torch.from_numpy(nn_t), torch.from_numpy(nn_j)
+
+
+def _to_atlas(m, c, org, px, b, S):
+    """Leaf local (template units) -> atlas pixel frame of slot b (x in [b S, (b+1) S))."""
+    sc = 1.0 / px
+    mm = torch.stack([(m[:, 0] - float(org[0])) * sc + b * S, (m[:, 1] - float(org[1])) * sc,
+                      m[:, 2]], -1)
+    D = torch.diag(torch.tensor([sc, sc, 1.0], dtype=m.dtype))
+    return mm, D @ c @ D
