@@ -4,7 +4,8 @@
 
 For every plant of ``samples.benchmark_suite()`` and ``--seeds`` random global frames each
 (the generator places each plant by a random similarity, like an SfM reconstruction), runs
-``estimate_up_with_confidence`` on the Gaussian centres and ``resolve_root(..., "auto")`` with
+``estimate_up_with_confidence`` on the Gaussian centres and normals (``--points-only``: centres
+only) and ``resolve_root(..., "auto")`` with
 the estimated up; reports the angle to the true up, the root's distance to the true root
 (fraction of plant height) and the confidence. Writes benchmarks/results/up_axis.json.
 """
@@ -23,7 +24,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from leaffit_usd.io_util import atomic_write_bytes  # noqa: E402
-from leaffit_usd.splats.frame import estimate_up_with_confidence, resolve_root  # noqa: E402
+from leaffit_usd.splats.frame import (estimate_up_with_confidence, gaussian_normals,  # noqa: E402
+                                      resolve_root)
 from samples import benchmark_suite, make_plant  # noqa: E402
 
 
@@ -31,6 +33,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=3, help="random frames per plant")
     ap.add_argument("--gaussians", type=int, default=60_000)
+    ap.add_argument("--points-only", action="store_true",
+                    help="estimate from the centres only (no Gaussian-normal cue)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/up_axis.json"))
     args = ap.parse_args(argv)
     rows = []
@@ -40,7 +44,8 @@ def main(argv=None) -> int:
             s = seed * 1000 + k
             cloud, gt = make_plant(dataclasses.replace(spec), s)
             t = time.perf_counter()
-            est = estimate_up_with_confidence(cloud.means)
+            normals = None if args.points_only else gaussian_normals(cloud)
+            est = estimate_up_with_confidence(cloud.means, normals)
             dt = time.perf_counter() - t
             err = float(np.degrees(np.arccos(np.clip(est.up @ gt.up, -1, 1))))
             ri = resolve_root(cloud, "auto", None, est.up)

@@ -53,7 +53,8 @@ def summarize(path: str | os.PathLike, prim: str | None = None, up: str | None =
     anisotropy {...} (largest / smallest scale).
     """
     from leaffit_usd.splats import detect_format, load_cloud
-    from leaffit_usd.splats.frame import estimate_up_with_confidence, make_frame, parse_up
+    from leaffit_usd.splats.frame import (estimate_up_with_confidence, gaussian_normals, make_frame,
+                                          parse_up)
 
     path = Path(path)
     kind = detect_format(path)
@@ -62,7 +63,7 @@ def summarize(path: str | os.PathLike, prim: str | None = None, up: str | None =
     means = cloud.means
     lo, hi = means.min(0).astype(np.float64), means.max(0).astype(np.float64)
     if up is None or str(up).strip().lower() == "auto":
-        est = estimate_up_with_confidence(means)
+        est = estimate_up_with_confidence(means, gaussian_normals(cloud))
         up_vec, source, conf = est.up, "estimated", float(est.confidence)
     else:
         up_vec, source, conf = parse_up(up), "given", None

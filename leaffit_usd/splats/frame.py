@@ -247,12 +247,15 @@ def _subsample(points: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
 
 
 def _remove_isolated(p: np.ndarray, k: int = 8, factor: float = 4.0) -> np.ndarray:
-    """Drop points whose k-th neighbour is much farther than typical (floaters). (M, 3) -> (M', 3)."""
+    """Drop rows whose k-th neighbour is much farther than typical (floaters).
+
+    p : (M, 3 + C); neighbours by the first 3 columns (positions). Returns (M', 3 + C).
+    """
     from scipy.spatial import cKDTree
 
     if len(p) <= 4 * k:
         return p
-    d, _ = cKDTree(p).query(p, k=k + 1)
+    d, _ = cKDTree(p[:, :3]).query(p[:, :3], k=k + 1)
     dk = d[:, -1]
     keep = dk <= factor * np.median(dk)
     return p[keep] if keep.sum() > len(p) // 2 else p
@@ -269,9 +272,10 @@ def _plane_basis(u: np.ndarray) -> np.ndarray:
 _BANDS = (0.05, 0.10, 0.15, 0.20, 0.25)
 _OFFSET_WEIGHT = 0.1
 _FLAT_WEIGHT = 0.05
+_CANOPY_CHECK_DEG = 40.0
 
 
-def _root_score(p: np.ndarray, u: np.ndarray) -> tuple[float, np.ndarray]:
+def _root_score(p: np.ndarray, u: np.ndarray) -> tuple[float, np.ndarray]:  # noqa: C901
     """How well ``u`` explains 'narrow stem at the bottom, under a wide canopy'. Lower is better.
 
     p : (M, 3) float64 (floaters removed); u : (3,) unit. Returns (score, root estimate (3,)).
@@ -290,6 +294,8 @@ def _root_score(p: np.ndarray, u: np.ndarray) -> tuple[float, np.ndarray]:
       covariance of the 10 % band -- a stem's cut is round, a leaf tip seen edge-on is a line
       (without it, pointed leaf tips won a quarter of the synthetic plants).
     """
+    normals = p[:, 3:6] if p.shape[1] == 6 else None
+    p = p[:, :3]
     h = p @ u
     lo, hi = np.quantile(h, [0.001, 0.999])
     ext = hi - lo
@@ -315,6 +321,10 @@ def _root_score(p: np.ndarray, u: np.ndarray) -> tuple[float, np.ndarray]:
         if f == _BANDS[1] and len(xb) >= 5:
             ev = np.linalg.eigvalsh(np.cov(xb.T))
             flat = 1.0 - np.sqrt(max(ev[0], 0.0) / max(ev[1], 1e-300))
+            if normals is not None:
+                nb = normals[band] @ basis  # (k, 2): a stem's surface normals go all round
+                ev = np.linalg.eigvalsh(nb.T @ nb / len(nb))
+                flat += 1.0 - np.sqrt(max(ev[0], 0.0) / max(ev[1], 1e-300))
     offset = np.linalg.norm(centre0 - c)
     score = (np.mean(widths) + _OFFSET_WEIGHT * offset) / radius + _FLAT_WEIGHT * flat
     root = basis @ centre0 + u * lo
@@ -345,10 +355,12 @@ def _refine(p: np.ndarray, u: np.ndarray, score: float, cones=(12.0, 6.0, 3.0, 1
     return u, score
 
 
-def estimate_up_with_confidence(points: np.ndarray) -> UpEstimate:
+def estimate_up_with_confidence(points: np.ndarray, normals: np.ndarray | None = None) -> UpEstimate:
     """Estimate the up axis of a plant capture in an arbitrary (SfM) frame.
 
     points : (N, 3) float, input frame (Gaussian centres). Deterministic.
+    normals : optional (N, 3) unit vectors, input frame: each Gaussian's shortest axis (see
+        :func:`gaussian_normals`); adds the cue "a stem's surface normals point all round".
 
     Cues (no learning): a plant's root end is narrow (one stem) and lies under the canopy's
     centre, while leaves spread wide above. :func:`_root_score` measures this for a direction
@@ -362,9 +374,16 @@ def estimate_up_with_confidence(points: np.ndarray) -> UpEstimate:
     p = np.asarray(points)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 10:
         raise ParameterError("points", "(N, 3) with N >= 10", getattr(p, "shape", None))
+    if normals is not None:
+        normals = np.asarray(normals)
+        if normals.shape != p.shape:
+            raise ParameterError("normals", f"shape {p.shape} like points", normals.shape)
+        p = np.concatenate([p, normals], axis=1)
     p = _remove_isolated(_subsample(p[np.isfinite(p).all(1)], _UP_SAMPLE))
-    center = p.mean(0)
+    center = np.zeros(p.shape[1])
+    center[:3] = p[:, :3].mean(0)
     p = p - center
+    center = center[:3]
     coarse = _subsample(p, 3000, seed=1)
     dirs = fibonacci_sphere(200)
     scores = np.array([_root_score(coarse, d)[0] for d in dirs])
@@ -383,12 +402,27 @@ def estimate_up_with_confidence(points: np.ndarray) -> UpEstimate:
     second = min(far) if far else np.inf
     conf = float(np.clip(1 - best / second, 0, 1)) if np.isfinite(second) and second > 0 else 0.0
     _, root = _root_score(p, u)
+    # Gravity check: the stem's base direction can be far from vertical (a creeping or sharply
+    # bent stem) while the canopy still sits above the root. When the canopy's centroid is more
+    # than 40 degrees off the stem direction, trust the centroid (and say the answer is shaky).
+    to_canopy = p[:, :3].mean(0) - root
+    if np.linalg.norm(to_canopy) > 0:
+        to_canopy /= np.linalg.norm(to_canopy)
+        if u @ to_canopy < np.cos(np.radians(_CANOPY_CHECK_DEG)):
+            u, conf = to_canopy, 0.5 * conf
     return UpEstimate(up=u / np.linalg.norm(u), confidence=conf, root=root + center)
 
 
-def estimate_up(points: np.ndarray) -> np.ndarray:
+def estimate_up(points: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
     """(N, 3) input-frame points -> (3,) float64 unit up vector. See :func:`estimate_up_with_confidence`."""
-    return estimate_up_with_confidence(points).up
+    return estimate_up_with_confidence(points, normals).up
+
+
+def gaussian_normals(cloud: GaussianCloud) -> np.ndarray:
+    """(N, 3) float32, input frame: each Gaussian's shortest axis (its surface normal when flat)."""
+    r = quat_to_matrix(cloud.rotations)
+    k = np.argmin(cloud.log_scales, axis=1)
+    return np.ascontiguousarray(r[np.arange(len(cloud)), :, k])
 
 
 # ---- root ----------------------------------------------------------------------------------------
@@ -487,7 +521,7 @@ def resolve_root(cloud: GaussianCloud, spec: str | None = None, root_index: int 
         return int(pos)
     if spec_t in (None, "", "auto"):
         if up is None:
-            up = estimate_up(cloud.means)
+            up = estimate_up(cloud.means, gaussian_normals(cloud))
         return auto_root_index(cloud.means, up, _main)
     try:
         xyz = np.asarray([float(c) for c in spec_t.split(",")], np.float64)
@@ -524,7 +558,7 @@ def make_frame(cloud: GaussianCloud, up=None, root: str | None = "auto",
 
     log = logging.getLogger("leaffit_usd")
     if up is None or (isinstance(up, str) and up.strip().lower() == "auto"):
-        est = estimate_up_with_confidence(cloud.means)
+        est = estimate_up_with_confidence(cloud.means, gaussian_normals(cloud))
         u = est.up
         log.info("estimated up axis (%.3f, %.3f, %.3f), confidence %.2f%s", *u, est.confidence,
                  "" if est.confidence >= LOW_UP_CONFIDENCE else " (low: pass --up to be sure)")
