@@ -11,9 +11,9 @@
    ``samples.benchmark_suite()``, generated): the automatic segmentation (frame, normals,
    ``segment_plant`` with paper defaults), the predicted leaves that merge two ground-truth
    leaves (each holding >= 30% of both), and a short edits file that separates each pair the
-   way a user would (:func:`user_edits`: one brush stroke along the smaller leaf, assign to a new
-   leaf — 2 operations per pair; clicks land on the Gaussians nearest to the generator's
-   midrib, the radius is what a user sets by eye). Acc/mIoU/mF1/PQ before and after
+   way a user would (:func:`user_edits`: a brush stroke along the smaller leaf, a thin erase
+   stroke along the other, assign to a new leaf — 3 operations per pair; clicks land on the
+   Gaussians nearest to the generator's midrib, the radius is what a user sets by eye). Acc/mIoU/mF1/PQ before and after
    (``leaffit_usd.metrics.segmentation``), the pair's IoUs, and the edits file replayed through
    ``apply_edits_file`` (identical labels required).
 
@@ -149,33 +149,38 @@ def merged_pairs(pred, gt, min_share=0.3):
     return out
 
 
-def user_edits(cloud, gt, apex, base, pairs, height):
-    """The operations a user makes to separate each merged pair (cloud indices).
+def _midrib(cloud, gt, leaf, apex, base, height):
+    """Stroke centres along a leaf's midrib (10 clicks on its own Gaussians) and its half width."""
+    mine = np.flatnonzero(gt == leaf)
+    pts = cloud.means[mine].astype(np.float64)
+    tip, foot = apex[leaf - 1], base[leaf - 1]
+    axis = (tip - foot) / np.linalg.norm(tip - foot)
+    rel = pts - foot
+    half_width = np.percentile(np.linalg.norm(rel - np.outer(rel @ axis, axis), axis=1), 95) / height
+    centres = []
+    for t in np.linspace(0.05, 0.95, 10):
+        c = int(mine[np.argmin(np.linalg.norm(pts - (foot + t * (tip - foot)), axis=1))])
+        if c not in centres:
+            centres.append(c)
+    return centres, float(half_width)
 
-    For each pair, the smaller ground-truth leaf is painted with one brush stroke along its
-    midrib (10 stamps from base to apex, clicked on the leaf's own Gaussians), with the radius a
-    user would set by eye: 0.8 x the leaf's half width; then the selection goes to a new leaf.
+
+def user_edits(cloud, gt, apex, base, pairs, height):
+    """The operations a user makes to separate each merged pair (cloud indices), 3 per pair.
+
+    The smaller ground-truth leaf of the pair is painted with one brush stroke along its midrib
+    (10 clicks on the leaf's own Gaussians, from base to apex) with the radius a user sets by eye
+    to cover the blade: its half width (95th percentile distance from the midrib); a second,
+    thinner erase stroke along the other leaf's midrib (half its half width) takes back what
+    leaked across the contact; the selection goes to a new leaf.
     """
     ops = []
     for _, a, b in pairs:
-        leaf = a if (gt == a).sum() <= (gt == b).sum() else b
-        mine = np.flatnonzero(gt == leaf)
-        pts = cloud.means[mine].astype(np.float64)
-        tip, foot = apex[leaf - 1], base[leaf - 1]
-        axis = (tip - foot) / np.linalg.norm(tip - foot)
-        rel = pts - foot
-        half_width = np.percentile(np.linalg.norm(rel - np.outer(rel @ axis, axis), axis=1), 95) / height
-
-        def click(pnt):
-            return int(mine[np.argmin(np.linalg.norm(pts - pnt, axis=1))])
-
-        centres = []
-        for t in np.linspace(0.05, 0.95, 10):
-            c = click(foot + t * (tip - foot))
-            if c not in centres:
-                centres.append(c)
-        ops.append({"op": "brush", "centers": centres, "radius": round(float(0.8 * half_width), 4),
-                    "mode": "replace"})
+        leaf, other = (a, b) if (gt == a).sum() <= (gt == b).sum() else (b, a)
+        centres, hw = _midrib(cloud, gt, leaf, apex, base, height)
+        ops.append({"op": "brush", "centers": centres, "radius": round(hw, 4), "mode": "replace"})
+        centres, hw = _midrib(cloud, gt, other, apex, base, height)
+        ops.append({"op": "brush", "centers": centres, "radius": round(0.5 * hw, 4), "mode": "erase"})
         ops.append({"op": "assign", "label": "new"})
     return ops
 
@@ -279,7 +284,7 @@ def main(argv=None) -> int:
     for k in ("drag_new_source", "drag_cached_source", "brush_new_centre", "server_pick_plus_preview"):
         print(f"  {k:22s} {u[k]['median_ms']:8.1f} ms median, {u[k]['p95_ms']:.1f} p95, {u[k]['max_ms']:.1f} max")
     res["overlap"] = cases = overlap_benchmark(Path(args.plant), args.generated, args.overlap_gaussians)
-    print(f"\nSeparating merged leaves (brush stroke along the smaller leaf + assign new, per merged pair)")
+    print(f"\nSeparating merged leaves (per merged pair: brush the smaller leaf, erase along the other, assign new)")
     print(f"  {'plant':16s} {'ops':>3s} {'':6s} {'Acc':>6s} {'mIoU':>6s} {'mF1':>6s} {'PQ':>6s} {'TP':>4s}  pair IoUs before -> after")
     for c in cases:
         for tag in ("before", "after"):
