@@ -85,6 +85,16 @@ def test_brush_assign_save_in_chromium(sample, heat, tmp_path):
             assert "Leaf 1" not in page.inner_text("[data-testid=leaves]")
             page.keyboard.press("Control+Shift+Z")
             page.wait_for_function("() => window.leaffit.state().n_ops === 2")
+            # the drag tool: press at one end of the leaf, drag to the other; then Esc clears
+            page.check("[data-testid=tool-drag]")
+            page.mouse.move(*stroke[-1])
+            page.mouse.down()
+            page.mouse.move(*stroke[0], steps=5)
+            page.mouse.up()
+            page.wait_for_function("() => !window.leaffit.busy && window.leaffit.state().n_ops === 3", timeout=30000)
+            assert page.evaluate("window.leaffit.state().selected") > 0
+            page.keyboard.press("Escape")
+            page.wait_for_function("() => window.leaffit.state().n_ops === 4")
             page.click("[data-testid=save]")
             page.wait_for_function("() => document.getElementById('outputs').textContent.startsWith('saved')",
                                    timeout=30000)
@@ -94,7 +104,8 @@ def test_brush_assign_save_in_chromium(sample, heat, tmp_path):
         server.stop()
     saved = np.load(tmp_path / "l.npz")["labels"]
     ops = load_edits(tmp_path / "e.json", ply).operations
-    assert [o["op"] for o in ops] == ["brush", "assign"] and len(ops[0]["centers"]) >= 2
+    assert [o["op"] for o in ops] == ["brush", "assign", "drag", "clear"] and len(ops[0]["centers"]) >= 2
+    assert ops[2]["source"] != ops[2]["target"]
     # same edits through the replay path (fresh cloud, fresh solver)
     cloud2 = load_cloud(ply)
     replayed = apply_edits(np.zeros(len(cloud2), np.int32), cloud2, load_edits(tmp_path / "e.json", ply),

@@ -207,6 +207,15 @@ function currentMode(e) {
   return document.querySelector('input[name=mode]:checked').value;
 }
 
+function farEnough(a, b, d) {
+  // brush stamps closer than d (display frame = plant heights) add nothing visible: skip them,
+  // which keeps strokes (and their replay) short
+  if (a === b) return false;
+  const p = S.positions;
+  const dx = p[3 * a] - p[3 * b], dy = p[3 * a + 1] - p[3 * b + 1], dz = p[3 * a + 2] - p[3 * b + 2];
+  return dx * dx + dy * dy + dz * dz >= d * d;
+}
+
 async function step() {
   // process the latest pointer position of the gesture (one request in flight at a time)
   const g = S.gesture;
@@ -218,7 +227,7 @@ async function step() {
     const idx = await pickAt(x, y);
     if (idx >= 0) {
       if (g.op.op === 'drag') g.op.target = idx;
-      else if (g.op.centers[g.op.centers.length - 1] !== idx) g.op.centers.push(idx);
+      else if (farEnough(g.op.centers[g.op.centers.length - 1], idx, 0.3 * g.op.radius)) g.op.centers.push(idx);
       const res = await api('preview', { op: g.op });
       S.lastUpdateMs = res.ms;
       if (S.gesture === g) {
