@@ -125,6 +125,7 @@ from typing import NamedTuple  # noqa: E402
 
 _UP_SAMPLE = 40_000        # points used by the up estimator (deterministic subsample)
 _ROOT_SAMPLE = 60_000      # points used for the connected-component analysis of --root auto
+_ROOT_GRAPH_K = 10         # neighbours per sample in that analysis
 _ROOT_FAR = 0.10           # --root X,Y,Z must lie within this fraction of the plant size
 LOW_UP_CONFIDENCE = 0.35  # below this, estimate_up was wrong in some benchmark runs (benchmarks/up_axis.py)
 
@@ -433,63 +434,103 @@ def plant_size(points: np.ndarray) -> float:
     return float(np.linalg.norm(hi - lo))
 
 
-def _main_component_mask(points: np.ndarray) -> np.ndarray:
-    """(N,) bool: points that belong to the largest connected blob (floaters excluded).
+class MainBlob:
+    """The largest connected blob of a capture (the plant without its floaters).
 
-    Connectivity is computed on a deterministic subsample (<= 60k points) with a radius of
-    4x the median 4-NN spacing; every point inherits the component of its nearest sample
-    (and is excluded when that sample is farther than the radius).
+    Connectivity is computed on a deterministic subsample (<= 60k points): each sample is linked
+    to its 10 nearest neighbours closer than 4x the median 4-NN spacing (O(n k) edges whatever
+    the density). A point belongs to the blob when its nearest sample does and is closer than
+    that radius. :meth:`contains` classifies any points; querying only the few points that
+    matter (the lowest, the highest) keeps a 1M-Gaussian capture fast.
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
 
-    p = np.asarray(points, np.float64)
-    n = len(p)
-    if n < 20:
-        return np.ones(n, bool)
-    if n > _ROOT_SAMPLE:
-        sidx = np.sort(np.random.default_rng(0).choice(n, _ROOT_SAMPLE, replace=False))
-    else:
-        sidx = np.arange(n)
-    s = p[sidx]
-    tree = cKDTree(s)
-    d, _ = tree.query(s, k=5)
-    radius = 4.0 * float(np.median(d[:, -1]))
-    if radius <= 0:
-        return np.ones(n, bool)
-    pairs = tree.query_pairs(radius, output_type="ndarray")
-    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(s), len(s)))
-    _, lab = connected_components(g, directed=False)
-    main = np.bincount(lab).argmax()
-    if len(sidx) == n:
-        return lab == main
-    dist, near = tree.query(p, k=1)
-    return (lab[near] == main) & (dist <= radius)
+    def __init__(self, points: np.ndarray):
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+        from scipy.spatial import cKDTree
+
+        p = np.asarray(points, np.float64)
+        n = len(p)
+        self.trivial = n < 20
+        if self.trivial:
+            return
+        if n > _ROOT_SAMPLE:
+            sidx = np.sort(np.random.default_rng(0).choice(n, _ROOT_SAMPLE, replace=False))
+        else:
+            sidx = np.arange(n)
+        s = p[sidx]
+        self.tree = cKDTree(s)
+        d, nb = self.tree.query(s, k=min(_ROOT_GRAPH_K + 1, len(s)))
+        self.radius = 4.0 * float(np.median(d[:, min(4, d.shape[1] - 1)]))
+        if self.radius <= 0:
+            self.trivial = True
+            return
+        ok = d[:, 1:] <= self.radius
+        rows = np.repeat(np.arange(len(s)), d.shape[1] - 1)[ok.ravel()]
+        g = coo_matrix((np.ones(len(rows)), (rows, nb[:, 1:].ravel()[ok.ravel()])),
+                       shape=(len(s), len(s)))
+        _, lab = connected_components(g, directed=False)
+        self.sample_in = lab == np.bincount(lab).argmax()
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """(M, 3) input frame -> (M,) bool."""
+        q = np.asarray(points, np.float64).reshape(-1, 3)
+        if self.trivial:
+            return np.ones(len(q), bool)
+        d, near = self.tree.query(q, k=1)
+        return self.sample_in[near] & (d <= self.radius)
+
+    def extreme(self, points: np.ndarray, h: np.ndarray, lowest: bool, batch: int = 4096) -> int:
+        """Index of the lowest (or highest) point by ``h`` that belongs to the blob."""
+        key = h if lowest else -h
+        if len(key) > batch:  # usually the answer is among the first few: avoid a full sort
+            first = np.argpartition(key, batch)[:batch]
+            first = first[np.argsort(key[first], kind="stable")]
+            inside = np.flatnonzero(self.contains(points[first]))
+            if len(inside):
+                return int(first[inside[0]])
+        order = np.argsort(key, kind="stable")
+        for start in range(0, len(order), batch):
+            idx = order[start:start + batch]
+            inside = np.flatnonzero(self.contains(points[idx]))
+            if len(inside):
+                return int(idx[inside[0]])
+        return int(order[0])
 
 
-def auto_root_index(points: np.ndarray, up: np.ndarray, main: np.ndarray | None = None) -> int:
+def _main_component_mask(points: np.ndarray) -> np.ndarray:
+    """(N,) bool: points that belong to the largest connected blob (see :class:`MainBlob`)."""
+    return MainBlob(points).contains(points)
+
+
+def _height_range(points: np.ndarray, up: np.ndarray, blob: MainBlob) -> tuple[int, int, np.ndarray]:
+    h = np.asarray(points, np.float64) @ up
+    return blob.extreme(points, h, True), blob.extreme(points, h, False), h
+
+
+def auto_root_index(points: np.ndarray, up: np.ndarray, blob: MainBlob | None = None) -> int:
     """Index of the root Gaussian: the bottom of the plant along ``up``, robust to floaters.
 
     points : (N, 3) input frame; up : (3,) input frame. Among the points of the largest
-    connected blob, take those within 1 % of the plant's extent above its lowest point and return
-    the one nearest to their median (the middle of the stem's cut, not a stray edge Gaussian).
-    main : optional precomputed (N,) bool mask of the largest blob.
+    connected blob (:class:`MainBlob`), take those within 1 % of the plant's extent above its
+    lowest point and return the one nearest to their median (the middle of the stem's cut, not
+    a stray edge Gaussian).
     """
     p = np.asarray(points, np.float64)
     up = np.asarray(up, np.float64) / np.linalg.norm(up)
-    if main is None:
-        main = _main_component_mask(p)
-    idx = np.flatnonzero(main)
-    h = p[idx] @ up
-    ext = float(h.max() - h.min())
-    low = idx[h <= h.min() + 0.01 * ext]
+    blob = blob or MainBlob(p)
+    lo, hi, h = _height_range(p, up, blob)
+    ext = float(h[hi] - h[lo])
+    cand = np.flatnonzero(h <= h[lo] + 0.01 * ext)
+    low = cand[blob.contains(p[cand])]
+    if len(low) == 0:
+        return lo
     med = np.median(p[low], axis=0)
     return int(low[np.argmin(np.linalg.norm(p[low] - med, axis=1))])
 
 
 def resolve_root(cloud: GaussianCloud, spec: str | None = None, root_index: int | None = None,
-                 up: np.ndarray | None = None, _main: np.ndarray | None = None) -> int:
+                 up: np.ndarray | None = None, _blob: MainBlob | None = None) -> int:
     """The root Gaussian's index into ``cloud`` (0..len(cloud)-1) from the CLI's root options.
 
     spec : ``"X,Y,Z"`` (the Gaussian nearest to that point, input frame -- what a click picks;
@@ -522,7 +563,7 @@ def resolve_root(cloud: GaussianCloud, spec: str | None = None, root_index: int 
     if spec_t in (None, "", "auto"):
         if up is None:
             up = estimate_up(cloud.means, gaussian_normals(cloud))
-        return auto_root_index(cloud.means, up, _main)
+        return auto_root_index(cloud.means, up, _blob)
     try:
         xyz = np.asarray([float(c) for c in spec_t.split(",")], np.float64)
     except ValueError:
@@ -569,7 +610,10 @@ def make_frame(cloud: GaussianCloud, up=None, root: str | None = "auto",
         if u.shape != (3,) or not np.isfinite(u).all() or np.linalg.norm(u) < 1e-12:
             raise ParameterError("up", "a non-zero (3,) vector", up)
         u = u / np.linalg.norm(u)
-    main = _main_component_mask(cloud.means)
-    ri = resolve_root(cloud, root, root_index, u, _main=main)
-    frame = Frame.from_root_up(cloud.means[main], cloud.means[ri].astype(np.float64), u)
+    blob = MainBlob(cloud.means)
+    ri = resolve_root(cloud, root, root_index, u, _blob=blob)
+    # height: the plant's extent above the root, floaters excluded
+    _, hi, _ = _height_range(cloud.means, u, blob)
+    pts = cloud.means[[ri, hi]]
+    frame = Frame.from_root_up(pts, cloud.means[ri].astype(np.float64), u)
     return FrameChoice(frame, ri)
