@@ -121,10 +121,10 @@ def run(args) -> int:
         raise ParameterError("--port", "a port number in [0, 65535]", args.port)
     if args.samples < 16:
         raise ParameterError("--samples", "at least 16", args.samples)
-    inp = Path(args.input)
-    cloud = load_cloud(inp)
     if args.labels and args.empty:
         raise ParameterError("--empty", "not together with --labels", True)
+    inp = Path(args.input)
+    cloud = load_cloud(inp)
     frame = None
     if args.labels:
         labels, root = read_labels_file(args.labels, cloud)

@@ -176,3 +176,23 @@ def test_cli_refuses_bad_labels_file(served, tmp_path):
     r = subprocess.run([sys.executable, "-m", "leaffit_usd", "edit", str(d / "plant.ply"), "--no-browser",
                         "--labels", str(tmp_path / "short.npz")], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "labels" in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("extra, words", [
+    (["--port", "70000"], "--port"),
+    (["--samples", "3"], "--samples"),
+    (["--labels", "x.npz", "--empty"], "--empty"),
+])
+def test_cli_bad_options(served, capsys, extra, words):
+    from leaffit_usd.cli import main
+
+    assert main(["edit", str(served[1] / "plant.ply"), "--no-browser", *extra]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "Traceback" not in err
+
+
+def test_cli_missing_input(capsys, tmp_path):
+    from leaffit_usd.cli import main
+
+    assert main(["edit", str(tmp_path / "nope.ply"), "--no-browser"]) == 2
+    assert "nope.ply" in capsys.readouterr().err
