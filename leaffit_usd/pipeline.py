@@ -38,7 +38,7 @@ class ConvertOptions:
         ``StemParams`` fields (e.g. ``fit={"K": 16, "steps": 100}``)
     up_axis : the stage's up axis, "Y" or "Z"; meters_per_unit; height_m : real plant height
     texture_format : "jpg" | "png"; texture_size : longest side of the written textures
-    baked : also write the baked-leaves payload (variant leafRepresentation = baked)
+    baked : baked-leaves payload: "auto" (beside .usda/.usdc, not in .usdz), True or False
     sheet_offset : front/back sheet separation, fraction of the template's extent
     """
 
@@ -56,7 +56,7 @@ class ConvertOptions:
     height_m: float | None = None
     texture_format: str = "jpg"
     texture_size: int = 1024
-    baked: bool = True
+    baked: bool | str = "auto"
     sheet_offset: float | None = None
 
 
@@ -259,7 +259,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
             input_sha256=sha, params=params,
             extra_metadata={"input_name": input_path.name})
         wopt = WriteOptions(texture_format=o.texture_format, texture_max_size=int(o.texture_size),
-                            baked=bool(o.baked))
+                            baked=o.baked)
         result = write_stage(output_path, asset,
                              LeafTextures(template.front_texture, template.back_texture), wopt)
 

@@ -9,7 +9,7 @@ DESCRIPTION = """Run the whole LeafFit pipeline: load -> frame (up axis, root) -
 -> fit the template leaf to every leaf (MLS) -> template mesh + textures + stem -> USD stage.
 
 Outputs .usda / .usdc (textures in textures/ and the baked-leaves payload beside the stage) or
-.usdz (everything packed). Paper defaults; every parameter is in working units (root at the
+.usdz (textures packed; the baked payload only with --baked yes). Paper defaults; every parameter is in working units (root at the
 origin, up +Z, plant height 1). A failed conversion leaves no output behind.
 
 examples:
@@ -79,7 +79,9 @@ def add_arguments(p) -> None:
     g.add_argument("--texture-format", choices=["jpg", "png"], default="jpg",
                    help="jpg (compact, default) or png (keeps alpha)")
     g.add_argument("--texture-size", type=_pos_int, default=1024, help="longest side of the written textures (1024)")
-    g.add_argument("--no-baked", action="store_true", help="do not write the baked-leaves payload")
+    g.add_argument("--baked", choices=["auto", "yes", "no"], default="auto",
+                   help="baked-leaves payload (variant leafRepresentation=baked) for tools without the "
+                        "deformer: auto = beside .usda/.usdc, not packed into .usdz (default)")
 
 
 def options_from_args(args):
@@ -100,7 +102,7 @@ def options_from_args(args):
         up=args.up, root=args.root, root_index=args.root_index, labels=args.labels, edits=args.edits,
         segment=seg, fit=fit, mesh=mesh, up_axis=args.up_axis.upper(),
         meters_per_unit=args.meters_per_unit, height_m=args.height,
-        texture_format=args.texture_format, texture_size=args.texture_size, baked=not args.no_baked)
+        texture_format=args.texture_format, texture_size=args.texture_size, baked={"auto": "auto", "yes": True, "no": False}[args.baked])
 
 
 def run(args) -> int:

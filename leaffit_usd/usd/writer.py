@@ -43,6 +43,7 @@ FORMATS = (".usda", ".usdc", ".usd", ".usdz")
 TEXTURE_FORMATS = ("jpg", "png")
 STEM_COLOR = (0.23, 0.30, 0.12)   # linear RGB of the stem material
 LEAF_ROUGHNESS = 0.6
+ZIP_EPOCH = 946728000   # 2000-01-01 12:00 UTC: fixed timestamps inside .usdz packages
 
 
 @dataclass
@@ -61,14 +62,16 @@ class WriteOptions:
         outline) or "png" (keeps alpha, wired to opacity with a 0.5 cut-out threshold)
     texture_max_size : textures larger than this (pixels, longest side) are downsampled
     jpeg_quality : 1..100
-    baked : also write the baked-leaves payload (variant leafRepresentation = baked)
+    baked : write the baked-leaves payload (variant leafRepresentation = baked): True, False or
+        "auto" (default: a sidecar file beside .usda/.usdc; left out of .usdz, the compact
+        delivery format, where it would triple the size -- pass True to pack it)
     prim_name : name of the plant prim (default: the output file's stem, made a valid identifier)
     """
 
     texture_format: str = "jpg"
     texture_max_size: int = 1024
     jpeg_quality: int = 90
-    baked: bool = True
+    baked: bool | str = "auto"
     prim_name: str | None = None
 
 
@@ -126,7 +129,10 @@ def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
             front_tex, back_tex = "./" + rel["texture_front"], "./" + rel["texture_back"]
         else:
             front_tex, back_tex = asset.front_texture, asset.back_texture
-        baked_rel = f"{stem}.baked.usdc" if options.baked and asset.n_leaves else None
+        if options.baked not in (True, False, "auto"):
+            raise ParameterError("--baked", "auto, yes or no", options.baked)
+        want_baked = (ext != ".usdz") if options.baked == "auto" else bool(options.baked)
+        baked_rel = f"{stem}.baked.usdc" if want_baked and asset.n_leaves else None
         if baked_rel:
             _write_baked_layer(tmp / baked_rel, asset)
             rel["baked"] = baked_rel
@@ -520,6 +526,8 @@ def _package_usdz(pkg: Path, base: Path, files: list[str]) -> None:
     """Pack ``files`` (relative to base, the root layer first) into an uncompressed, aligned usdz."""
     from pxr import Sdf
 
+    for rel in files:  # the zip entries carry the files' mtimes: fix them for byte-identical output
+        os.utime(base / rel, (ZIP_EPOCH, ZIP_EPOCH))
     writer = Sdf.ZipFileWriter.CreateNew(str(pkg))
     for rel in files:
         writer.AddFile(str(base / rel), rel)

@@ -19,7 +19,7 @@ ARRAYS = ("template_points", "template_faces", "template_normals", "template_uvs
 @pytest.mark.parametrize("ext", ["usda", "usdc", "usdz"])
 def test_round_trip_and_usd_validation(tmp_path, asset, textures, ext):
     out = tmp_path / f"plant.{ext}"
-    res = W.write_stage(out, asset, textures)
+    res = W.write_stage(out, asset, textures, W.WriteOptions(baked=True))
     assert out.is_file() and res.total_bytes > 0
     b = read_stage(out)
     for name in ARRAYS:
@@ -154,6 +154,14 @@ def test_plain_pxr_reads_every_value_without_the_plugin(tmp_path, asset, texture
     assert lines[0] == "False"      # the plug-in is not known there ...
     assert all(" True " in l for l in lines[1:6]), r.stdout   # ... but every value is authored
     assert int(lines[6]) == asset.targets.shape[0] * asset.targets.shape[1]
+
+
+def test_usdz_leaves_baked_payload_out_by_default(tmp_path, asset, textures):
+    W.write_stage(tmp_path / "p.usdz", asset, textures)
+    names = zipfile.ZipFile(tmp_path / "p.usdz").namelist()
+    assert "p.baked.usdc" not in names and len(names) == 3
+    assert "leafRepresentation" not in (tmp_path / "p.usdz").read_bytes().decode("latin-1")
+    assert validate_file(tmp_path / "p.usdz").count("error") == 0
 
 
 def test_deterministic_bytes(tmp_path, asset, textures):
