@@ -190,9 +190,11 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
     t1 = time.perf_counter()
     d_root = solver.distance(root)
     reach = np.isfinite(d_root)
-    if not reach.all():
-        log.warning("the cloud is disconnected: %d of %d Gaussians are not connected to the root "
-                    "and stay unassigned", int((~reach).sum()), n)
+    lost = int((~reach & inlier).sum())
+    if lost:
+        (log.warning if lost > 0.005 * n else log.info)(
+            "the cloud is disconnected: %d of %d Gaussians are not connected to the root and stay "
+            "unassigned", lost, n)
     samples = samples[reach[samples]]
     tm["distance_root"] = time.perf_counter() - t1
 
