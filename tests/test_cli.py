@@ -73,7 +73,10 @@ def _bad_files(d: Path) -> dict:
     files["bad_sh_count"] = (raw_ply(ru, names, np.ones((3, len(names)))), "7 f_rest_*")
     bu = d / "bad.usda"
     bu.write_text("#usda 1.0\ndef Mesh \"M\" {\n  point3f[] points = [(0, 0\n")
-    files["broken_usda"] = (bu, "not a readable USD file")
+    files["broken_usda"] = (bu, "parse error at line 3")
+    gu = d / "garbage.usdc"
+    gu.write_bytes(b"PXR-USDC" + bytes(range(256)) * 3)
+    files["garbage_usdc"] = (gu, "not a readable USD file")
     nu = d / "nosplat.usda"
     nu.write_text("#usda 1.0\ndef Xform \"World\" {\n}\n")
     files["usd_without_splats"] = (nu, "no ParticleField3DGaussianSplat prim")
@@ -93,7 +96,7 @@ def bad_files(tmp_path_factory):
 
 CASES = ["truncated", "garbage", "wrong_header", "no_end_header", "many_nan", "empty_file",
          "zero_gaussians", "missing_fields", "zero_quaternions", "directory", "missing_file",
-         "unknown_extension", "truncated_ascii", "bad_sh_count", "broken_usda",
+         "unknown_extension", "truncated_ascii", "bad_sh_count", "broken_usda", "garbage_usdc",
          "usd_without_splats", "usd_two_prims"]
 
 
@@ -111,7 +114,7 @@ def test_malformed_input_exit_2_one_line(capsys, bad_files, case):
 
 def test_malformed_input_real_interpreter(bad_files):
     """Same contract through `python -m leaffit_usd` (no test harness in between)."""
-    for case in ("garbage", "truncated", "usd_two_prims"):
+    for case in ("garbage", "truncated", "broken_usda", "garbage_usdc", "usd_two_prims"):
         path, _ = bad_files[case]
         r = subprocess.run([sys.executable, "-m", "leaffit_usd", "inspect", str(path)],
                            capture_output=True, text=True, cwd=REPO, timeout=120)

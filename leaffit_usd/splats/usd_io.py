@@ -77,12 +77,24 @@ def open_stage(path: str | os.PathLike):
     try:
         stage = Usd.Stage.Open(str(path), Usd.Stage.LoadAll)
     except Tf.ErrorException as e:
-        first = str(e).strip().splitlines()
-        detail = next((ln.strip() for ln in first if ln.strip() and "Error in" not in ln), "")
-        raise InputFileError(path, f"not a readable USD file ({detail[:160] or 'parse error'})") from None
+        raise InputFileError(path, f"not a readable USD file ({_usd_error_detail(e)})") from None
     if stage is None:
         raise InputFileError(path, "not a readable USD file")
     return stage
+
+
+def _usd_error_detail(e) -> str:
+    """A short, one-line reason from a Tf.ErrorException (no C++ namespaces)."""
+    import re
+
+    text = str(e)
+    m = re.search(r":(\d+):(\d+): parse error", text)
+    if m:
+        return f"parse error at line {m.group(1)}, column {m.group(2)}"
+    msgs = re.findall(r" : '(.*)'\s*$", text, flags=re.M)
+    first = msgs[0] if msgs else (text.strip().splitlines() or [""])[0]
+    first = re.sub(r"pxrInternal_\w+?::", "", first).strip()
+    return (first[:120] + "...") if len(first) > 120 else (first or "parse error")
 
 
 def read_usd_splats(path: str | os.PathLike, prim: str | None = None, drop_bad: bool = True,

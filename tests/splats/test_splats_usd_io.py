@@ -163,3 +163,23 @@ def test_prim_option_on_ply_is_an_error(tmp_path):
     write_ply(small_cloud(5), tmp_path / "a.ply")
     with pytest.raises(InputFileError, match="USD files only"):
         load_cloud(tmp_path / "a.ply", prim="/P")
+
+
+def test_half_precision_attributes_are_read(tmp_path):
+    path = tmp_path / "half.usda"
+    stage = Usd.Stage.CreateNew(str(path))
+    s = UsdVol.ParticleField3DGaussianSplat.Define(stage, "/P")
+    pos = np.array([[0, 0, 0], [1, 2, 3], [0.5, 0.25, 4]], np.float16)
+    s.CreatePositionshAttr().Set(Vt.Vec3hArray.FromNumpy(pos))
+    s.CreateScaleshAttr().Set(Vt.Vec3hArray.FromNumpy(np.full((3, 3), 0.125, np.float16)))
+    s.CreateOpacitieshAttr().Set(Vt.HalfArray.FromNumpy(np.array([0.5, 0.25, 0.75], np.float16)))
+    stage.GetRootLayer().Save()
+    c = load_cloud(path)
+    np.testing.assert_array_equal(c.means, pos.astype(np.float32))
+    np.testing.assert_allclose(c.scales, 0.125, rtol=1e-6)
+    np.testing.assert_allclose(c.opacities, [0.5, 0.25, 0.75], rtol=1e-6)
+
+
+def test_write_rejects_non_usd_name(tmp_path):
+    with pytest.raises(InputFileError, match="not a USD file name"):
+        write_usd_splats(small_cloud(3), tmp_path / "a.ply")
