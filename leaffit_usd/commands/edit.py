@@ -146,7 +146,7 @@ def run(args) -> int:
                             min_opacity=args.min_opacity)
     if edits is not None:
         session.segmenter.replay(to_cloud_operations(edits.operations, cloud))
-        session.saved_ops = len(session.segmenter.operations)
+        session.saved_ops = list(session.segmenter.operations)
         log.info("edit: replayed %d operations from %s", len(edits.operations), args.edits)
     server = ViewerServer(session, port=args.port)
     print(f"leaffit-usd edit: open {server.url}", flush=True)
@@ -163,7 +163,7 @@ def run(args) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
-    if len(session.segmenter.operations) != session.saved_ops and session.segmenter.operations:
+    if session.segmenter.operations != session.saved_ops:
         log.warning("edit: stopped with %d unsaved operations", len(session.segmenter.operations))
     print("leaffit-usd edit: stopped", flush=True)
     return 0

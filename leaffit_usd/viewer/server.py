@@ -90,7 +90,7 @@ class ViewerSession:
     root_index: int | None = None
     up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
     input_name: str = ""
-    saved_ops: int = 0
+    saved_ops: list = field(default_factory=list)  # operations at the last save (for "dirty")
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def __post_init__(self):
@@ -124,7 +124,7 @@ class ViewerSession:
             "selection": _pack(seg.selection), "selected": int(seg.selection.sum()),
             "leaves": leaves, "stem": int(counts[0]),
             "can_undo": seg.can_undo, "can_redo": seg.can_redo, "n_ops": len(seg.operations),
-            "dirty": len(seg.operations) != self.saved_ops,
+            "dirty": seg.operations != self.saved_ops,
         }
 
     # ---- actions ---------------------------------------------------------------------------
@@ -151,7 +151,7 @@ class ViewerSession:
             with open(tmp, "wb") as fh:
                 np.savez_compressed(fh, labels=labels, **extra)
         save_edits(edits, self.edits_out)
-        self.saved_ops = len(seg.operations)
+        self.saved_ops = list(seg.operations)
         log.info("saved %s (%d operations) and %s (%d leaves)", self.edits_out, len(edits.operations),
                  self.labels_out, int(labels.max(initial=0)))
         return {"edits": self.edits_out.name, "labels": self.labels_out.name,
