@@ -32,10 +32,15 @@ from leaffit_usd.splats.cloud import matrix_to_quat
 from leaffit_usd.splats.frame import Frame
 from leaffit_usd.usd.asset import PlantAsset
 
-# Distance between the front and back sheets of the prototype, as a fraction of the template's
-# largest extent (each side moves half of it along its own normal). Keeps viewers that draw back
-# faces (Blender ignores doubleSided = false) from z-fighting; 0.1% of a 10 cm leaf is 0.1 mm,
-# far above a 24-bit depth buffer's resolution at viewing distance, far below anything visible.
+# Distance between the front and back sheets where they are drawn without the deformer (the
+# prototype Mesh's points) and in the baked leaves, as a fraction of the template's largest extent
+# (each side moves half of it along its own normal). Keeps viewers that draw back faces (Blender
+# ignores doubleSided = false) from z-fighting; 0.1% of a 10 cm leaf is 0.1 mm, far above a
+# 24-bit depth buffer's resolution at viewing distance, far below anything visible.
+# The MLS itself always runs on the coplanar rest sheets (PlantAsset.template_points): pushed
+# through the affine MLS, an offset along the normal is scaled by the fit's arbitrary normal
+# response and the back sheet pokes through the front (measured: up to 67% of a leaf's vertices
+# on rubber_tree).
 DEFAULT_SHEET_OFFSET = 1e-3
 
 
@@ -101,7 +106,9 @@ def asset_from_results(template: TemplateMesh, fits: LeafFits, stem: Stem | None
 
     template : TemplateMesh, template local frame; fits : LeafFits; stem : Stem or None
     (no stem geometry); frame : the input <-> working similarity.
-    sheet_offset : front/back sheet separation as a fraction of the template's largest extent.
+    sheet_offset : front/back sheet separation as a fraction of the template's largest extent;
+        recorded (metadata["sheet_offset"], in template units) and applied by the writer to the
+        prototype's drawn points and to the baked leaves, never to the MLS rest points.
     params : the parameters used, recorded in the stage's customData.
     """
     s_a = asset_scale(frame, meters_per_unit, height_m)
@@ -125,7 +132,7 @@ def asset_from_results(template: TemplateMesh, fits: LeafFits, stem: Stem | None
     pts = np.asarray(template.points, np.float32)
     extent = float(np.ptp(pts, axis=0).max()) if len(pts) else 0.0
     offset = float(sheet_offset) * extent
-    tpl_points = offset_sheets(pts, template.normals, offset) if offset > 0 else pts.copy()
+    tpl_points = pts.copy()
 
     if stem is not None and len(stem.points):
         stem_points = (s_a * np.asarray(stem.points, np.float64) @ r_a.T).astype(np.float32)

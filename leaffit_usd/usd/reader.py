@@ -102,6 +102,13 @@ def read_stage_object(stage, path="<stage>") -> PlantAsset:
     if len(side) != len(points):
         side = np.zeros(len(points), np.uint8)
 
+    # the prototype's points are drawn with the sheets pushed apart by sheetOffset; the MLS rest
+    # points (PlantAsset.template_points) are the coplanar sheets: undo the push
+    off = float(_get(inst_prim, S.ATTR_SHEET_OFFSET, 0.0) or 0.0)
+    if off > 0 and len(normals) == len(points):
+        n = normals.astype(np.float64)
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        points = (points.astype(np.float64) - 0.5 * off * n).astype(np.float32)
     controls = _np(_get(inst_prim, S.ATTR_CONTROLS), np.float32, (3,))
     K = int(_get(inst_prim, S.ATTR_K, len(controls)))
     primvar_name = str(_get(inst_prim, S.ATTR_TARGETS_PRIMVAR, S.TARGETS_PRIMVAR))

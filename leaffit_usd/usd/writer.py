@@ -296,8 +296,9 @@ def _author_template_mesh(stage, path: str, a: PlantAsset, looks: str):
     mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
     mesh.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
     mesh.CreateDoubleSidedAttr(False)
-    mesh.CreatePointsAttr(_vec3f(a.template_points))
-    mesh.CreateExtentAttr(_extent(a.template_points))
+    drawn = drawn_template_points(a)
+    mesh.CreatePointsAttr(_vec3f(drawn))
+    mesh.CreateExtentAttr(_extent(drawn))
     mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(a.template_faces), 3, np.int32)))
     mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(a.template_faces, np.int32).ravel()))
     mesh.CreateNormalsAttr(_vec3f(a.template_normals))
@@ -334,6 +335,46 @@ def _quat_arrays(q_wxyz: np.ndarray):
     xyzw = np.ascontiguousarray(np.concatenate([q[:, 1:], q[:, :1]], 1))
     return (Vt.QuathArray.FromNumpy(xyzw.astype(np.float16)),
             Vt.QuatfArray.FromNumpy(xyzw.astype(np.float32)))
+
+
+def sheet_offset(a: PlantAsset) -> float:
+    """The front/back sheet separation (template units) recorded in the asset (0 if none)."""
+    return float((a.metadata or {}).get("sheet_offset", 0.0) or 0.0)
+
+
+def drawn_template_points(a: PlantAsset) -> np.ndarray:
+    """(V, 3) float32 prototype points as authored: the rest points, each moved by
+    sheet_offset/2 along its own unit normal (front up, back down). The reader inverts this."""
+    from leaffit_usd.usd.assemble import offset_sheets
+
+    off = sheet_offset(a)
+    return offset_sheets(a.template_points, a.template_normals, off) if off > 0 else \
+        np.asarray(a.template_points, np.float32)
+
+
+def _side_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(L, V, 3) unit area-weighted vertex normals of (L, V, 3) meshes sharing ``faces``."""
+    e1 = points[:, faces[:, 1]] - points[:, faces[:, 0]]
+    e2 = points[:, faces[:, 2]] - points[:, faces[:, 0]]
+    fn = np.cross(e1, e2)                                                    # (L, F, 3)
+    n = np.zeros_like(points)
+    for k in range(3):
+        np.add.at(n, (slice(None), faces[:, k]), fn)
+    return n / np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-30)
+
+
+def baked_leaves(a: PlantAsset) -> np.ndarray:
+    """(L, V, 3) float64 leaves as written to the baked payload, asset frame: the deformer's
+    output (:func:`_deformed_leaves`) with the two sheets pushed apart by sheet_offset * scale
+    along each leaf's own deformed vertex normals (each sheet's normals come from its own faces,
+    so the back sheet moves to the back)."""
+    leaves = _deformed_leaves(a)
+    off = sheet_offset(a)
+    if off <= 0 or not len(leaves):
+        return leaves
+    n = _side_normals(leaves, np.asarray(a.template_faces, np.int64))
+    s = np.asarray(a.scales, np.float64).mean(1)[:, None, None]
+    return leaves + 0.5 * off * s * n
 
 
 def _deformed_leaves(a: PlantAsset) -> np.ndarray:
@@ -389,7 +430,7 @@ def _write_main_layer(out: Path, a: PlantAsset, name: str, front_tex: str, back_
     tg.Set(_vec3f(a.targets))
     lab = pv.CreatePrimvar("leaffit:leafLabel", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex)
     lab.Set(Vt.IntArray.FromNumpy(np.asarray(a.leaf_labels, np.int32)))
-    leaves = _deformed_leaves(a) if L else np.zeros((0, 3))
+    leaves = baked_leaves(a) if L else np.zeros((0, 3))
     inst.CreateExtentAttr(_extent(leaves))
     ip = inst.GetPrim()
     ip.SetCustomDataByKey("leaffit:role", "leaves")
@@ -491,7 +532,7 @@ def _write_baked_layer(out: Path, a: PlantAsset) -> None:
     """
     from pxr import Sdf, Usd, UsdGeom, Vt
 
-    leaves = _deformed_leaves(a).astype(np.float32)
+    leaves = baked_leaves(a).astype(np.float32)
     stage = Usd.Stage.CreateNew(str(out))
     up = str(a.metadata.get("up_axis", "Y")).upper()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)

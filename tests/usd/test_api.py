@@ -51,7 +51,7 @@ def test_edit_control_point_save_and_baked_refresh(stage_path, asset):
     root = stage.GetDefaultPrim()
     root.GetVariantSets().GetVariantSet("leafRepresentation").SetVariantSelection("baked")
     pts = np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath(f"{root.GetPath()}/BakedLeaves/leaf_0003")).GetPointsAttr().Get())
-    np.testing.assert_allclose(pts, after[3], atol=1e-5)
+    np.testing.assert_allclose(pts, W.baked_leaves(plant.asset)[3], atol=1e-5)
 
 
 def test_swap_texture_and_export_usdz(stage_path, tmp_path):

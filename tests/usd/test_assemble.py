@@ -73,13 +73,27 @@ def test_split_similarity_rejects_reflection():
     np.testing.assert_allclose(r[1], np.eye(3))
 
 
-def test_sheets_are_separated_and_rigid_view_keeps_it(results, asset):
+def test_rest_sheets_coplanar_drawn_and_baked_sheets_apart(results, asset, tmp_path):
+    """MLS rest points: front/back coincide; the prototype as drawn and the baked leaves: apart,
+    with the back sheet behind the front one on every vertex of every leaf."""
+    from pxr import Usd, UsdGeom
+
+    from leaffit_usd.usd import writer as W
+    from leaffit_usd.usd.reader import read_stage
+
     t = results[0]
     V2 = len(t.points) // 2
-    d = asset.template_points[:V2] - asset.template_points[V2:]
+    np.testing.assert_array_equal(asset.template_points[:V2], asset.template_points[V2:])
     off = asset.metadata["sheet_offset"]
     assert off > 0
-    np.testing.assert_allclose(d[:, 2], off, rtol=1e-3)   # front above back by the offset
+    W.write_stage(tmp_path / "p.usda", asset)
+    stage = Usd.Stage.Open(str(tmp_path / "p.usda"))
+    drawn = np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath("/p/Leaves/Prototypes/TemplateLeaf")).GetPointsAttr().Get())
+    np.testing.assert_allclose(drawn[:V2, 2] - drawn[V2:, 2], off, rtol=1e-3)
+    np.testing.assert_allclose(read_stage(tmp_path / "p.usda").template_points, asset.template_points, atol=1e-7)
+    baked = W.baked_leaves(asset)
+    n = W._side_normals(baked, asset.template_faces.astype(np.int64))[:, :V2]
+    sep = ((baked[:, :V2] - baked[:, V2:]) * n).sum(2) / asset.scales[:, :1]
+    assert sep.min() > 0.9 * off and sep.max() < 1.1 * off
     assert asset.n_leaves == len(results[1].leaf_labels)
     assert asset.metadata["input_sha256"] == "ab" * 32
-    assert asset.asset_to_input.shape == (4, 4)
