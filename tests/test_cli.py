@@ -73,7 +73,7 @@ def _bad_files(d: Path) -> dict:
     files["bad_sh_count"] = (raw_ply(ru, names, np.ones((3, len(names)))), "7 f_rest_*")
     bu = d / "bad.usda"
     bu.write_text("#usda 1.0\ndef Mesh \"M\" {\n  point3f[] points = [(0, 0\n")
-    files["broken_usda"] = (bu, "parse error at line 3")
+    files["broken_usda"] = (bu, "parse error at line 4")
     gu = d / "garbage.usdc"
     gu.write_bytes(b"PXR-USDC" + bytes(range(256)) * 3)
     files["garbage_usdc"] = (gu, "not a readable USD file")
