@@ -545,6 +545,8 @@ def resolve_root(cloud: GaussianCloud, spec: str | None = None, root_index: int 
     from scipy.spatial import cKDTree
 
     spec_t = None if spec is None else str(spec).strip()
+    if up is None and root_index is not None and np.ndim(root_index) == 1 and np.size(root_index) == 3:
+        up, root_index = root_index, None  # called as resolve_root(cloud, spec, up) (TEAM.md form)
     if root_index is not None:
         if spec_t not in (None, "", "auto"):
             raise ParameterError("--root-index", "either --root or --root-index, not both",

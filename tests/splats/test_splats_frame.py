@@ -165,3 +165,9 @@ def test_make_frame_normalises_plant():
     assert _angle(fc2.frame.up, sp.up) < 30
     with pytest.raises(ParameterError):
         make_frame(sp.cloud, up="sideways")
+
+
+def test_resolve_root_three_argument_form():
+    """resolve_root(cloud, spec, up) (the TEAM.md form) works like the keyword form."""
+    sp = make_plant(5)
+    assert resolve_root(sp.cloud, "auto", sp.up) == resolve_root(sp.cloud, "auto", None, sp.up)
