@@ -130,6 +130,13 @@ def test_real_socket_is_loopback_only(served):
         with pytest.raises(urllib.error.HTTPError) as e:
             urllib.request.urlopen(f"http://127.0.0.1:{port}/api/meta", timeout=10)
         assert e.value.code == 403
+        # the page's Quit button stops the server
+        req = urllib.request.Request(server.url + "api/stop", data=b"{}", method="POST",
+                                     headers={"Content-Type": "application/json"})
+        with urllib.request.urlopen(req, timeout=10) as r:
+            assert json.loads(r.read())["stopping"]
+        server._thread.join(timeout=10)
+        assert not server._thread.is_alive()
     finally:
         server.stop()
     with pytest.raises(OSError):

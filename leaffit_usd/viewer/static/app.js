@@ -317,6 +317,12 @@ async function save() {
   } catch (e) { setStatus(String(e.message || e), true); }
 }
 $('save').addEventListener('click', save);
+$('quit').addEventListener('click', async () => {
+  if (S.state && S.state.dirty && !window.confirm('Quit without saving the last edits?')) return;
+  await api('stop', {}).catch(() => null);
+  S.ready = false;
+  setStatus('The server has stopped; you can close this tab.');
+});
 $('rgb').addEventListener('change', recolor);
 for (const r of document.querySelectorAll('input[name=tool]')) r.addEventListener('change', () => setTool(r.value));
 $('radius').addEventListener('input', () => { $('radius-value').textContent = (+$('radius').value).toFixed(3); });
