@@ -365,6 +365,64 @@ def _orient_ccw(points, faces):
     return np.ascontiguousarray(f)
 
 
+def fill_notches(points, faces, max_gap: float, max_angle_deg: float = 60.0, iterations: int = 4):
+    """Close sharp notches of the outer boundary (an ear added across a reflex rim vertex).
+
+    A rim vertex ``v`` between ``a`` and ``b`` whose rim edges enclose less than
+    ``max_angle_deg`` outside the sheet, with ``|a - b| <= max_gap`` and no vertex inside
+    (a, v, b), gets the face (v, a, b). No new vertices; the sheet stays a disk. Returns
+    (faces, count added).
+    """
+    n = len(points)
+    added = 0
+    for _ in range(iterations):
+        loops = boundary_loops(faces, n)
+        if not loops:
+            break
+        lp = max(loops, key=lambda l: abs(signed_area_xy(points[l])))
+        if len(lp) < 5:
+            break
+        he, _ = edge_face_counts(faces, n)
+        existing = set(map(tuple, np.sort(he, 1).tolist()))
+        P = points[:, :2]
+        a, v, b = np.roll(lp, 1), lp, np.roll(lp, -1)
+        e1, e2 = P[a] - P[v], P[b] - P[v]
+        turn = (P[v] - P[a])[:, 0] * (P[b] - P[v])[:, 1] - (P[v] - P[a])[:, 1] * (P[b] - P[v])[:, 0]
+        cosang = (e1 * e2).sum(1) / np.maximum(np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-30)
+        ang = np.degrees(np.arccos(np.clip(cosang, -1, 1)))
+        gap = np.linalg.norm(points[a] - points[b], axis=1)
+        cand = np.flatnonzero((turn < 0) & (ang < max_angle_deg) & (gap <= max_gap))
+        new, used = [], set()
+        tree = cKDTree(P)
+        for i in cand[np.argsort(ang[cand])]:
+            ai, vi, bi = int(a[i]), int(v[i]), int(b[i])
+            if used & {ai, vi, bi} or (min(ai, bi), max(ai, bi)) in existing:
+                continue
+            tri = P[[vi, ai, bi]]
+            c = tri.mean(0)
+            near = tree.query_ball_point(c, float(np.linalg.norm(tri - c, axis=1).max()) + 1e-12)
+            inside = False
+            for q in near:
+                if q in (ai, vi, bi):
+                    continue
+                x = P[q]
+                s1 = (tri[1, 0] - tri[0, 0]) * (x[1] - tri[0, 1]) - (tri[1, 1] - tri[0, 1]) * (x[0] - tri[0, 0])
+                s2 = (tri[2, 0] - tri[1, 0]) * (x[1] - tri[1, 1]) - (tri[2, 1] - tri[1, 1]) * (x[0] - tri[1, 0])
+                s3 = (tri[0, 0] - tri[2, 0]) * (x[1] - tri[2, 1]) - (tri[0, 1] - tri[2, 1]) * (x[0] - tri[2, 0])
+                if (s1 > 0 and s2 > 0 and s3 > 0) or (s1 < 0 and s2 < 0 and s3 < 0):
+                    inside = True
+                    break
+            if inside:
+                continue
+            new.append((vi, ai, bi))
+            used |= {ai, vi, bi}
+        if not new:
+            break
+        faces = np.concatenate([faces, np.asarray(new, np.int64)])
+        added += len(new)
+    return faces, added
+
+
 # ---- reconstructions ----------------------------------------------------------------------------
 def sample_spacing(points: np.ndarray) -> float:
     """Median distance from each point to its nearest neighbour."""
@@ -412,6 +470,7 @@ def bpa_sheet(points: np.ndarray, radii=(2.0, 3.0, 4.0)) -> Sheet:
     faces = _fix_bowties(pts, faces)
     faces = _orient_ccw(pts, faces)
     faces, info["holes_before"], info["holes_after"] = fill_holes(pts, faces)
+    faces, info["notches_filled"] = fill_notches(pts, faces, 4.0 * spacing)
     faces = _fix_nonmanifold_edges(pts, faces)
     faces = _fix_bowties(pts, faces)
     faces = _orient_ccw(pts, faces)
@@ -483,6 +542,7 @@ def planar_sheet(points: np.ndarray, alpha: float = 2.5) -> Sheet:
     faces, info["islands_removed"] = _largest_component(pts, faces)
     faces = _fix_bowties(pts, faces)
     faces, _, info["holes_after"] = fill_holes(pts, faces)  # slivers/bow-ties can open some
+    faces, info["notches_filled"] = fill_notches(pts, faces, 2.0 * alpha * spacing)
     if len(faces) == 0:
         return Sheet(np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64), info)
     p, f, si = _compact(pts, faces, idx)

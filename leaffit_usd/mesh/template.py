@@ -259,6 +259,29 @@ def _dilate_colors(rgb: np.ndarray, solid: np.ndarray) -> np.ndarray:
     return rgb[ri, ci]
 
 
+def _clean_mask(mask: np.ndarray, sheet_mask: np.ndarray) -> np.ndarray:
+    """Closing (disk of radius ``max(2, size/128)`` texels: closes nicks where the capture's
+    margin is sparse, keeps serration teeth), holes filled, within the sheet (+2 texels),
+    components smaller than 1 % of the largest removed."""
+    from scipy.ndimage import binary_closing, binary_dilation, binary_fill_holes, label
+
+    if not mask.any():
+        return mask
+    rc = max(2, int(round(max(mask.shape) / 128)))
+    yy, xx = np.mgrid[-rc:rc + 1, -rc:rc + 1]
+    disk = xx * xx + yy * yy <= rc * rc
+    m = binary_closing(np.pad(mask, rc + 1), structure=disk)[rc + 1:-rc - 1, rc + 1:-rc - 1] | mask
+    if sheet_mask.any():
+        yy, xx = np.mgrid[-2:3, -2:3]
+        m &= binary_dilation(sheet_mask, structure=xx * xx + yy * yy <= 4)
+    m = binary_fill_holes(m)
+    lab, n = label(m)
+    if n > 1:
+        sizes = np.bincount(lab.ravel())[1:]
+        m = np.isin(lab, 1 + np.flatnonzero(sizes >= 0.01 * sizes.max()))
+    return m
+
+
 def _side_texture(color: np.ndarray, alpha: np.ndarray, thr: float, sheet_mask: np.ndarray):
     """RGBA float (H, W, 4) straight alpha from a premultiplied render (color (H, W, 3), alpha
     (H, W)), and the splat coverage of the sheet's silhouette."""
@@ -266,7 +289,8 @@ def _side_texture(color: np.ndarray, alpha: np.ndarray, thr: float, sheet_mask: 
 
     straight = color / np.maximum(alpha, 1e-6)[..., None]
     straight = np.clip(straight, 0.0, 1.0)
-    solid = binary_fill_holes(alpha > thr)  # opaque inside, pin-holes too
+    # opaque inside (pin-holes and one-or-two-texel nicks closed), specks off the rim dropped
+    solid = _clean_mask(alpha > thr, sheet_mask)
     # a one-texel anti-aliased rim: texels just outside the cut take alpha / thr, the rest 0
     from scipy.ndimage import distance_transform_edt
 

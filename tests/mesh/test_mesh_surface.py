@@ -128,3 +128,22 @@ def test_degenerate_inputs_do_not_raise():
     q = S.fallback_quad(line)
     assert S.sheet_checks(q.points, q.faces)["is_disk"]
     assert S.fallback_quad(np.zeros((0, 3))).faces.shape == (2, 3)
+
+
+def test_fill_notches_closes_sharp_rim_notch():
+    # a fan of a half-disc with one thin wedge missing at the rim
+    ang = np.linspace(0, np.pi, 13)
+    rim = np.stack([np.cos(ang), np.sin(ang), 0 * ang], 1)
+    p = np.concatenate([[[0.0, 0.0, 0.0]], rim, [[0.0, 0.0, 0.0]]])[:-1]
+    f = np.array([[0, i, i + 1] for i in range(1, 13)], np.int64)
+    # notch: move the centre of one rim edge's triangle apex outwards -> drop that face, add a
+    # vertex slightly inside so the rim has a sharp reflex corner
+    p = np.concatenate([p, [[0.5 * np.cos(ang[6] + 0.13), 0.5 * np.sin(ang[6] + 0.13), 0.0]]])
+    v = len(p) - 1
+    f = np.concatenate([f[f[:, 1] != 7], [[0, 7, v], [0, v, 8]]])
+    before = S.sheet_checks(p, f)
+    assert before["is_disk"]
+    f2, added = S.fill_notches(p, f, max_gap=1.0)
+    assert added == 1
+    after = S.sheet_checks(p, f2)
+    assert after["is_disk"] and len(f2) == len(f) + 1
