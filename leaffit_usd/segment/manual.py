@@ -31,7 +31,6 @@ from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from leaffit_usd.errors import ParameterError, UserError
 
@@ -78,6 +77,8 @@ class SampledGeodesics:
 
     def __init__(self, points, height: float, n_samples: int = N_SAMPLES, solver_factory=None,
                  k: int = K_EXTEND, cache_size: int = 1024, normals=None):
+        from scipy.spatial import cKDTree
+
         from leaffit_usd.geometry.sampling import farthest_point_sampling
 
         points = np.asarray(points, np.float64)
