@@ -67,6 +67,9 @@ class PlantSpec:
         their GT mesh stays complete)
     variation : per-leaf shape/size variation scale (0 = identical leaves)
     palette : front colour RGB in [0, 1]; None = per-kind green
+    glossy : strength of the view-dependent (higher SH band) noise on leaf fronts
+    variegation : 0..1, yellow-cream streaks on the blades (golden pothos)
+    spots : fraction of leaves with a few brown spots (damage, age)
     global_frame : apply a random similarity (input frame != canonical frame)
     hard : marks a deliberately difficult plant (set automatically when overlap != none)
     """
@@ -87,6 +90,8 @@ class PlantSpec:
     variation: float = 1.0
     palette: tuple | None = None
     glossy: float = 0.5
+    variegation: float = 0.0
+    spots: float = 0.2
     petiole_ratio: float | None = None
     leaf_length: float | None = None
     global_frame: bool = True
@@ -134,7 +139,7 @@ PRESETS: dict[str, dict] = {
                          leaf_length=0.19),
     "golden_pothos": dict(kind="cordate", shape="cordate", leaves=5, habit="shrub", height=0.35,
                           palette=(0.24, 0.45, 0.10), glossy=0.7, petiole_ratio=0.7,
-                          leaf_length=0.11),
+                          leaf_length=0.11, variegation=0.35),
     "green_pepper": dict(kind="elliptic", shape="ovate", leaves=9, habit="shrub", height=0.5,
                          palette=(0.16, 0.36, 0.10), glossy=0.4, leaf_length=0.1),
     "black_pearl_pepper": dict(kind="thin", shape="lanceolate", leaves=11, habit="shrub",
@@ -268,6 +273,7 @@ class Axis:
     pts: np.ndarray
     radius: np.ndarray
     kind: str = "stem"
+    internode: float = 0.0      # > 0: draw node rings every ``internode`` metres (canes)
 
     def __post_init__(self):
         seg = np.linalg.norm(np.diff(self.pts, axis=0), axis=1)
@@ -346,6 +352,7 @@ class _Leaf:
     n_secondary: int
     pet_radius: float
     hole: tuple | None = None   # (centre (2,), radius) in leaf 2D units: a sparse patch
+    spots: list = field(default_factory=list)  # [(centre (2,), radius)] brown spots, leaf 2D
 
     def world(self):
         R = self.place.frame()
@@ -407,7 +414,8 @@ def _build(spec: PlantSpec, rng: np.random.Generator):
     main = _curve([0, 0, 0], [lean[0], lean[1], 1.0], stem_h, rng, k=32, wobble=0.05,
                   up_pull=0.1)
     taper = 1.0 - (0.55 if habit == "shrub" else 0.15) * np.linspace(0, 1, len(main)) ** 1.2
-    axes.append(Axis(main, r0 * taper, "stem"))
+    axes.append(Axis(main, r0 * taper, "stem",
+                     internode=float(rng.uniform(0.04, 0.07)) if habit == "cane" else 0.0))
 
     # ---- allocate leaves to axes
     n_br = spec.branches if spec.branches is not None else (
@@ -508,7 +516,14 @@ def _build(spec: PlantSpec, rng: np.random.Generator):
             k = int(rng.integers(len(outline.poly)))
             c2 = outline.centre + rng.uniform(0.5, 0.9) * (outline.poly[k] - outline.centre)
             hole = (c2, float(rng.uniform(0.08, 0.18)) * float(np.ptp(outline.poly[:, 1]) + 0.3) / 1.3)
+        spots = []
+        if rng.uniform() < spec.spots:
+            inside = outline.poly[rng.integers(0, len(outline.poly), int(rng.integers(1, 5)))]
+            for q in inside:
+                c2 = outline.centre + rng.uniform(0.2, 0.85) * (q - outline.centre)
+                spots.append((c2, float(rng.uniform(0.01, 0.035))))
         leaves.append(_Leaf(sheet=sheet, place=pl, label=j + 1, colour_front=front, hole=hole,
+                            spots=spots,
                             colour_back=back, density=float(np.exp(rng.normal(0, 0.25))),
                             back_fraction=float(rng.uniform(0.25, 0.5)),
                             vein_phase=float(rng.uniform(0, 1)),
@@ -691,7 +706,9 @@ def _smooth_noise(p: np.ndarray, rng, n_waves=6, scale=1.0) -> np.ndarray:
     return (np.sin(p @ k.T + ph).sum(1)) / np.sqrt(n_waves / 2)
 
 
-def _sample_leaf(leaf: _Leaf, n: int, rng, glossy: float, sh_rest: int):
+def _sample_leaf(leaf: _Leaf, n: int, rng, glossy: float, variegation: float = 0.0):
+    """Gaussians on one blade, canonical frame: positions, scales (in-plane, in-plane, normal),
+    rotation matrices (N, 3, 3) [columns = axes], RGB, opacities, SH-rest noise level."""
     sh = leaf.sheet
     Vw = leaf.world()
     F = sh.faces
@@ -763,6 +780,14 @@ def _sample_leaf(leaf: _Leaf, n: int, rng, glossy: float, sh_rest: int):
     front = front + 0.7 * veins[:, None] * (vein_f - front)
     edge = np.clip((rad - 0.93) / 0.07, 0, 1)[:, None]
     front = front + 0.25 * edge * (np.array([0.45, 0.42, 0.12]) - front)
+    if variegation > 0:  # streaks running out from the midrib
+        streak = _smooth_noise(np.stack([xy[:, 0] * 0.6, np.abs(xy[:, 1]) * 3.0], 1), rng, 6, 0.5)
+        v = np.clip((streak - (1.2 - 1.6 * variegation)) / 0.4, 0, 1)[:, None]
+        front = front + 0.8 * v * (np.array([0.85, 0.8, 0.35]) - front)
+    for c2, r2 in leaf.spots:
+        d = np.linalg.norm(xy - c2, axis=1)
+        w = np.clip(1.0 - d / r2, 0, 1)[:, None] ** 0.5
+        front = front + 0.9 * w * (np.array([0.32, 0.22, 0.08]) - front)
     bk = leaf.colour_back[None, :] * (1 + 0.6 * mott[:, None])
     vein_b = np.clip(leaf.colour_back * 1.25 + 0.05, 0, 1)
     bk = bk + 0.8 * veins[:, None] * (vein_b - bk)
@@ -813,6 +838,10 @@ def _sample_tube(axis: Axis, n: int, rng, colour, colour_end=None, jitter=0.0003
     if colour_end is not None:
         along = ((axis.s[si] + u * seg[si]) / max(axis.length, 1e-12))[:, None]
         base = base + np.clip(along * 1.4, 0, 1) * (np.asarray(colour_end, float) - base)
+    if axis.internode > 0:
+        sa = axis.s[si] + u * seg[si]
+        ring = np.abs(np.mod(sa / axis.internode + 0.5, 1.0) - 0.5) * axis.internode < 0.002
+        base = np.where(ring[:, None], base * 0.6 + 0.05, base)
     col = np.clip(base * shade * np.exp(rng.normal(0, 0.07, (n, 1)))
                   + rng.normal(0, 0.015, (n, 3)), 0.003, 0.997)
     opa = np.where(rng.uniform(size=n) < 0.9, rng.uniform(0.85, 0.999, n), rng.uniform(0.1, 0.7, n))
@@ -900,7 +929,7 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
         parts_op.append(op); parts_rest.append(np.full(len(pos), 0.01)); parts_lab.append(np.zeros(len(pos), np.int32))
         parts_pet.append(np.full(len(pos), getattr(a, "leaf", 0), np.int32))
     for lf, c in zip(leaves, cnt_l):
-        pos, sc, R, col, op, rest = _sample_leaf(lf, int(c), rng, spec.glossy, 0)
+        pos, sc, R, col, op, rest = _sample_leaf(lf, int(c), rng, spec.glossy, spec.variegation)
         parts_pos.append(pos); parts_sc.append(sc); parts_R.append(R); parts_col.append(col)
         parts_op.append(op); parts_rest.append(rest); parts_lab.append(np.full(len(pos), lf.label, np.int32))
         parts_pet.append(np.zeros(len(pos), np.int32))
@@ -936,6 +965,12 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
     labels = np.concatenate(parts_lab)
     petiole_of = np.concatenate(parts_pet)
 
+    # keep canonical plant heights within 0.3-1.2 m (a uniform rescale, ~1 for most specs)
+    hz = pos[labels >= 0, 2]
+    h_c = float(hz.max() - min(hz.min(), 0.0))
+    k = float(np.clip(h_c, 0.3, 1.2) / h_c)
+    pos, scales = pos * k, scales * k
+
     # global similarity: canonical -> input (an SfM frame)
     if spec.global_frame:
         Rg = _random_rotation(rng)
@@ -949,7 +984,8 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
     pos_in = pos @ (sg * Rg).T + tg
     R_in = np.einsum("ij,njk->nik", Rg, R)
     quats = matrix_to_quat(R_in)
-    quats *= np.exp(rng.normal(0, 0.4, len(quats)))[:, None]  # trainers store unnormalised quats
+    # trainers store unnormalised quaternions of either sign
+    quats *= (np.exp(rng.normal(0, 0.4, len(quats))) * np.where(rng.uniform(size=len(quats)) < 0.5, -1, 1))[:, None]
     scales_in = scales * sg
 
     deg = int(spec.sh_degree)
@@ -967,8 +1003,8 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
     petiole_of = petiole_of[perm]
 
     # ---- ground truth (input frame)
-    def to_in(p):
-        return np.asarray(p, np.float64) @ (sg * Rg).T + tg
+    def to_in(p):  # built (unscaled) canonical -> input
+        return (k * np.asarray(p, np.float64)) @ (sg * Rg).T + tg
     root_c = np.zeros(3)
     root = to_in(root_c[None])[0]
     up = Rg @ np.array([0, 0, 1.0])
@@ -999,7 +1035,7 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
         leaf_node=to_in(np.array([lf.place.node for lf in leaves])),
         overlap_pairs=np.array([(a, b) for a, b, _ in pairs], np.int32).reshape(-1, 2),
         overlap_types=np.array([t for _, _, t in pairs], np.int32),
-        overlap_gaps=np.array([_min_dist(leaves[b - 1].world(), cKDTree(leaves[a - 1].world())) * sg
+        overlap_gaps=np.array([_min_dist(leaves[b - 1].world(), cKDTree(leaves[a - 1].world())) * sg * k
                                for a, b, _ in pairs], np.float64),
         canonical_to_input=M,
         spec=json.dumps({"spec": spec.to_dict(), "seed": int(seed), "habit": habit,
