@@ -17,9 +17,11 @@ Evaluate a LeafFit stage with the CPU reference evaluator and write the explicit
 every leaf (and the stem), for tools that cannot run the deformer.
 
   -o leaves.npz   vertices, faces, leaf_vertex_ids (+ leaf_labels, normals, uvs, side,
-                  stem_vertices, stem_faces, frame); default frame: the input capture's frame
+                  stem_vertices, stem_faces, frame); default: the input capture's frame,
+                  coplanar front/back sheets (the exact MLS image of the template)
   -o baked.usda   one Mesh per leaf (+ the stem) with the stage's materials (.usdc/.usd too);
-                  default frame: the asset (stage) frame, so it lines up with the plant
+                  default: the asset (stage) frame, so it lines up with the plant, and the
+                  sheets pushed apart like the stage's own baked variant
 
 Examples:
   leaffit-usd bake plant.usda -o leaves.npz
@@ -38,11 +40,18 @@ def add_arguments(parser) -> None:
                         help="coordinate frame of the output: 'input' = the capture's frame, "
                              "'asset' = the USD stage's frame (default: input for .npz, "
                              "asset for USD)")
+    parser.add_argument("--sheets", choices=("coplanar", "separated"), default=None,
+                        help="'coplanar' = the exact MLS image (front and back sheets coincide); "
+                             "'separated' = sheets pushed apart by the stage's sheetOffset along "
+                             "their deformed normals, as the stage's baked variant (no z-fighting "
+                             "in viewers that draw back faces). Default: coplanar for .npz, "
+                             "separated for USD")
     parser.add_argument("--float64", action="store_true",
                         help="store .npz vertices as float64 instead of float32")
 
 
-def bake(stage_path, output, frame: str | None = None, float64: bool = False) -> dict:
+def bake(stage_path, output, frame: str | None = None, float64: bool = False,
+         sheets: str | None = None) -> dict:
     """Read ``stage_path``, evaluate it and write ``output``. Returns a small report dict."""
     from leaffit_usd.runtime.bake import NPZ_FORMATS, USD_FORMATS, npz_arrays, write_baked_usd, write_npz
     from leaffit_usd.runtime.evaluator import evaluate
@@ -57,12 +66,14 @@ def bake(stage_path, output, frame: str | None = None, float64: bool = False) ->
         raise ParameterError("--output", "a path other than the input stage", str(output))
     if frame is None:
         frame = "input" if ext in NPZ_FORMATS else "asset"
+    if sheets is None:
+        sheets = "coplanar" if ext in NPZ_FORMATS else "separated"
 
     t0 = time.perf_counter()
     asset = read_stage(stage_path)               # InputFileError for missing / non-LeafFit files
     t1 = time.perf_counter()
     dtype = np.float64 if (float64 or ext in USD_FORMATS) else np.float32
-    baked = evaluate(asset, frame=frame, dtype=dtype)
+    baked = evaluate(asset, frame=frame, dtype=dtype, separate_sheets=(sheets == "separated"))
     t2 = time.perf_counter()
     log.info("evaluated %d leaves x %d vertices (K=%d) in %.1f ms (%s frame)", baked.n_leaves,
              len(asset.template_points), asset.targets.shape[1], 1e3 * (t2 - t1), frame)
@@ -76,9 +87,10 @@ def bake(stage_path, output, frame: str | None = None, float64: bool = False) ->
     t3 = time.perf_counter()
     log.info("wrote %s (%d bytes) in %.1f ms", output, output.stat().st_size, 1e3 * (t3 - t2))
     return {"leaves": baked.n_leaves, "vertices": int(len(baked.vertices)), "frame": frame,
+            "sheets": sheets,
             "seconds": {"read": t1 - t0, "evaluate": t2 - t1, "write": t3 - t2}}
 
 
 def run(args) -> int:
-    bake(args.stage, args.output, frame=args.frame, float64=args.float64)
+    bake(args.stage, args.output, frame=args.frame, float64=args.float64, sheets=args.sheets)
     return 0

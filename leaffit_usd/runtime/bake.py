@@ -11,6 +11,7 @@ npz keys (all written by :func:`write_npz`; the first three are the contract):
     side             (L*V,) uint8, 0 = front-sheet vertex, 1 = back-sheet vertex
     stem_vertices    (P, 3), stem_faces (G, 3) int32, the stem mesh in ``frame`` (may be empty)
     frame            0-d str, "input" (the capture's frame) or "asset" (the USD stage's frame)
+    sheet_offset     0-d float, front/back sheet separation applied (template units; 0 = coplanar)
 The file is byte-deterministic (fixed zip timestamps).
 
 baked USD layout (``write_baked_usd``)::
@@ -29,32 +30,13 @@ import zipfile
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
 
 from leaffit_usd.io_util import atomic_path
-from leaffit_usd.runtime.evaluator import BakedLeaves
+from leaffit_usd.runtime.evaluator import BakedLeaves, vertex_normals
 
 NPZ_FORMATS = (".npz",)
 USD_FORMATS = (".usda", ".usdc", ".usd")
 _ZIP_DATE = (1980, 1, 1, 0, 0, 0)
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals. vertices (N, 3), faces (F, 3) -> (N, 3) float32.
-
-    Vertices used by no face (or only by degenerate ones) get (0, 0, 0).
-    """
-    v = np.asarray(vertices, np.float64)
-    f = np.asarray(faces, np.int64)
-    if not len(f):
-        return np.zeros((len(v), 3), np.float32)
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])      # 2 * area * normal
-    rows = f.ravel()
-    cols = np.repeat(np.arange(len(f)), 3)
-    inc = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(v), len(f)))
-    n = inc @ fn
-    norm = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0).astype(np.float32)
 
 
 def npz_arrays(baked: BakedLeaves, template_uvs: np.ndarray, template_side: np.ndarray) -> dict:
@@ -65,12 +47,13 @@ def npz_arrays(baked: BakedLeaves, template_uvs: np.ndarray, template_side: np.n
         "faces": baked.faces.astype(np.int32),
         "leaf_vertex_ids": baked.leaf_vertex_ids.astype(np.int32),
         "leaf_labels": baked.leaf_labels.astype(np.int32),
-        "normals": vertex_normals(baked.vertices, baked.faces),
+        "normals": vertex_normals(baked.vertices, baked.faces).astype(np.float32),
         "uvs": np.tile(np.asarray(template_uvs, np.float32).reshape(-1, 2), (L, 1)),
         "side": np.tile(np.asarray(template_side, np.uint8).reshape(-1), L),
         "stem_vertices": baked.stem_vertices,
         "stem_faces": baked.stem_faces.astype(np.int32),
         "frame": np.array(baked.frame),
+        "sheet_offset": np.array(float(baked.metadata.get("sheet_offset", 0.0))),
     }
 
 
@@ -150,7 +133,7 @@ def write_baked_usd(path, baked: BakedLeaves, asset, source=None, name: str | No
     face_side = (asset.template_side[faces_t].astype(np.int32).sum(1) >= 2) if len(faces_t) else \
         np.zeros(0, bool)
     uvs = Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(asset.template_uvs, np.float32).reshape(-1, 2))
-    normals = vertex_normals(baked.vertices, baked.faces)
+    normals = vertex_normals(baked.vertices, baked.faces).astype(np.float32)
     name = name or Tf.MakeValidIdentifier(path.stem) or "Plant"
     md = asset.metadata or {}
 
@@ -172,6 +155,7 @@ def write_baked_usd(path, baked: BakedLeaves, asset, source=None, name: str | No
         Usd.ModelAPI(plant).SetKind(Kind.Tokens.component)
         plant.SetCustomDataByKey("leaffit", {
             "baked": True, "frame": baked.frame, "leafCount": int(L),
+            "sheetOffset": float(baked.metadata.get("sheet_offset", 0.0)),
             "source": str(source) if source is not None else "",
             "inputSha256": str(md.get("input_sha256", "")),
         })

@@ -113,6 +113,32 @@ def instance_matrices(positions: np.ndarray, orientations: np.ndarray,
     return M
 
 
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals. vertices (N, 3), faces (F, 3) -> (N, 3) float64.
+
+    Vertices used by no face (or only by degenerate ones) get (0, 0, 0).
+    """
+    import scipy.sparse as sp
+
+    v = np.asarray(vertices, np.float64).reshape(-1, 3)
+    f = np.asarray(faces, np.int64).reshape(-1, 3)
+    if not len(f):
+        return np.zeros((len(v), 3))
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])      # 2 * area * normal
+    inc = sp.csr_matrix((np.ones(f.size), (f.ravel(), np.repeat(np.arange(len(f)), 3))),
+                        shape=(len(v), len(f)))
+    n = inc @ fn
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+
+
+def sheet_offset(asset) -> float:
+    """Front/back sheet separation recorded on the asset (``metadata["sheet_offset"]``, template
+    units; 0 when absent). The MLS rest sheets are coplanar; viewers that draw back faces need
+    them apart (see ``evaluate(separate_sheets=True)``)."""
+    return float((getattr(asset, "metadata", None) or {}).get("sheet_offset", 0.0) or 0.0)
+
+
 class LeafEvaluator:
     """Deforms one template for any number of instances; the MLS weights are computed once.
 
@@ -168,7 +194,7 @@ class LeafEvaluator:
 
 
 def _asset_transforms(asset, frame: str) -> tuple[np.ndarray, np.ndarray]:
-    """(L, 4, 4) instance -> output frame, and the (4, 4) asset -> output frame matrix."""
+    """(L, 4, 4) instance -> asset frame, and the (4, 4) asset -> output frame matrix."""
     if frame not in FRAMES:
         raise ParameterError("frame", " or ".join(repr(f) for f in FRAMES), frame)
     L = asset.n_leaves
@@ -179,12 +205,11 @@ def _asset_transforms(asset, frame: str) -> tuple[np.ndarray, np.ndarray]:
     if frame == "input":
         to_out = _require("asset_to_input", asset.asset_to_input, (4, 4), "(4, 4) affine matrix")
         to_out = np.asarray(to_out, np.float64)
-    M = instance_matrices(asset.positions, asset.orientations, asset.scales)
-    return np.einsum("ij,ljk->lik", to_out, M), to_out
+    return instance_matrices(asset.positions, asset.orientations, asset.scales), to_out
 
 
 def evaluate(asset, frame: str = "input", dtype=np.float64,
-             evaluator: LeafEvaluator | None = None) -> BakedLeaves:
+             evaluator: LeafEvaluator | None = None, separate_sheets: bool = False) -> BakedLeaves:
     """Explicit meshes of all leaves (and the stem) of ``asset``.
 
     asset : PlantAsset (``leaffit_usd.usd.asset``), e.g. from ``usd.reader.read_stage``
@@ -192,6 +217,10 @@ def evaluate(asset, frame: str = "input", dtype=np.float64,
     dtype : float dtype of the returned vertices (arithmetic is float64 either way)
     evaluator : a :class:`LeafEvaluator` already built for this asset's template (reuse it to
         skip the weights when only targets/transforms changed)
+    separate_sheets : False (default): the exact MLS image of the template, whose front and back
+        sheets coincide. True: then push each sheet by sheet_offset/2 x the instance's scale along
+        its own deformed vertex normals (asset frame), as the stage's baked variant does, so
+        viewers that draw back faces do not z-fight. No-op when the asset records no offset.
     Returns :class:`BakedLeaves`.
     """
     ev = evaluator if evaluator is not None else LeafEvaluator.from_asset(asset)
@@ -202,16 +231,28 @@ def evaluate(asset, frame: str = "input", dtype=np.float64,
         raise ParameterError("template_faces", f"indices in [0, {V})",
                              f"range [{faces.min()}, {faces.max()}]")
     labels = _require("leaf_labels", asset.leaf_labels, (L,), f"({L},) int (one per leaf)")
-    M, to_out = _asset_transforms(asset, frame)
-
-    verts = ev.evaluate(asset.targets, M, out_dtype=dtype).reshape(L * V, 3)
+    M_asset, to_out = _asset_transforms(asset, frame)
 
     # faces of leaf j = template faces + j V, winding reversed where the placement mirrors
     all_faces = faces.astype(np.int32)[None] + (np.arange(L, dtype=np.int32) * V)[:, None, None]
-    mirrored = np.flatnonzero(np.linalg.det(M[:, :3, :3]) < 0)
+    mirrored = np.flatnonzero(np.linalg.det(np.einsum("ij,ljk->lik", to_out[:3, :3],
+                                                      M_asset[:, :3, :3])) < 0)
     if len(mirrored):
         all_faces[mirrored] = all_faces[mirrored][:, :, ::-1]
     all_faces = all_faces.reshape(-1, 3)
+
+    offset = sheet_offset(asset) if separate_sheets else 0.0
+    if offset > 0 and L:
+        leaves = ev.evaluate(asset.targets, M_asset).reshape(L * V, 3)      # asset frame
+        asset_faces = all_faces
+        if np.linalg.det(to_out[:3, :3]) < 0:        # normals of the asset-frame winding
+            asset_faces = all_faces[:, ::-1]
+        push = 0.5 * offset * np.abs(np.asarray(asset.scales, np.float64)).mean(1)
+        leaves += np.repeat(push, V)[:, None] * vertex_normals(leaves, asset_faces)
+        verts = np.asarray(leaves @ to_out[:3, :3].T + to_out[:3, 3], dtype=dtype, order="C")
+    else:
+        M = np.einsum("ij,ljk->lik", to_out, M_asset)
+        verts = ev.evaluate(asset.targets, M, out_dtype=dtype).reshape(L * V, 3)
 
     stem_pts = np.asarray(asset.stem_points, np.float64).reshape(-1, 3)
     stem_faces = np.asarray(asset.stem_faces, np.int32).reshape(-1, 3)
@@ -226,6 +267,6 @@ def evaluate(asset, frame: str = "input", dtype=np.float64,
         stem_vertices=stem_out.astype(dtype),
         stem_faces=np.ascontiguousarray(stem_faces),
         frame=frame,
-        metadata={"K": ev.K, "sigma": ev.sigma, "reg": ev.reg,
+        metadata={"K": ev.K, "sigma": ev.sigma, "reg": ev.reg, "sheet_offset": offset,
                   "template_vertex_count": V, "template_face_count": int(len(faces))},
     )

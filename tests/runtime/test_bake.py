@@ -22,7 +22,9 @@ def _textures():
 def plant(tmp_path_factory):
     d = tmp_path_factory.mktemp("plant")
     path = d / "plant.usda"
-    write_stage(path, synthetic_asset(n_leaves=5, n_vertices=300, seed=11), _textures())
+    asset = synthetic_asset(n_leaves=5, n_vertices=300, seed=11)
+    asset.metadata["sheet_offset"] = 3e-4          # as convert records it (template units)
+    write_stage(path, asset, _textures())
     return path
 
 
@@ -35,7 +37,7 @@ def test_npz_equals_evaluator(plant, tmp_path):
     assert run_cli(plant, "-o", out) == 0
     expect = evaluate(read_stage(plant), dtype=np.float32)         # default frame: input
     with np.load(out) as z:
-        assert str(z["frame"]) == "input"
+        assert str(z["frame"]) == "input" and float(z["sheet_offset"]) == 0.0
         assert z["vertices"].dtype == np.float32
         for key in ("vertices", "faces", "leaf_vertex_ids", "leaf_labels", "stem_vertices",
                     "stem_faces"):
@@ -62,8 +64,8 @@ def test_baked_usd_equals_evaluator_and_validates(plant, tmp_path):
     from pxr import Usd, UsdShade, UsdValidation
 
     out = tmp_path / "sub" / "baked.usda"
-    assert run_cli(plant, "-o", out) == 0                          # default frame: asset
-    expect = evaluate(read_stage(plant), frame="asset", dtype=np.float32)
+    assert run_cli(plant, "-o", out) == 0             # default: asset frame, separated sheets
+    expect = evaluate(read_stage(plant), frame="asset", dtype=np.float32, separate_sheets=True)
     v, f, ids = read_baked_usd(out)
     assert np.array_equal(v, expect.vertices)
     assert np.array_equal(f, expect.faces) and np.array_equal(ids, expect.leaf_vertex_ids)
@@ -89,9 +91,11 @@ def test_baked_usd_matches_the_writers_baked_payload(plant, tmp_path):
     stage = Usd.Stage.Open(str(payload))
     leaves = [p for p in stage.GetDefaultPrim().GetChildren() if p.IsA(UsdGeom.Mesh)]
     theirs = np.concatenate([np.asarray(UsdGeom.Mesh(p).GetPointsAttr().Get()) for p in leaves])
-    ours = evaluate(read_stage(plant), frame="asset").vertices
+    ours = evaluate(read_stage(plant), frame="asset", separate_sheets=True).vertices
     assert theirs.shape == ours.shape
     assert np.abs(theirs - ours).max() <= 1e-6 * np.ptp(ours, axis=0).max()
+    coplanar = evaluate(read_stage(plant), frame="asset").vertices
+    assert np.abs(theirs - coplanar).max() > 1e-5 * np.ptp(ours, axis=0).max()  # offset seen
 
 
 def test_usdz_input_textures_resolve(tmp_path):

@@ -195,3 +195,29 @@ def test_empty_plant():
     a = synthetic_asset(n_leaves=0, n_vertices=100)
     baked = evaluate(a)
     assert baked.vertices.shape == (0, 3) and baked.faces.shape == (0, 3)
+
+
+def test_separated_sheets():
+    """separate_sheets pushes front/back copies of each template vertex apart by offset x scale,
+    front along its deformed normal; without it (default) the two sheets coincide."""
+    a = synthetic_asset(n_leaves=3, n_vertices=400, seed=6)
+    half = len(a.template_points) // 2
+    off = 2e-3
+    a.metadata["sheet_offset"] = off
+    V, L = len(a.template_points), a.n_leaves
+    flat = evaluate(a, frame="asset").vertices.reshape(L, V, 3)
+    assert np.allclose(flat[:, :half], flat[:, half:])
+    sep = evaluate(a, frame="asset", separate_sheets=True)
+    v = sep.vertices.reshape(L, V, 3)
+    gap = np.linalg.norm(v[:, :half] - v[:, half:], axis=2)
+    expect = off * a.scales[:, :1]
+    assert np.allclose(np.median(gap, axis=1), expect[:, 0], rtol=0.05)
+    assert sep.metadata["sheet_offset"] == off
+    # the front sheet moved towards its outward normal (side of the front faces)
+    from leaffit_usd.runtime.evaluator import vertex_normals
+    n = vertex_normals(flat.reshape(-1, 3), sep.faces).reshape(L, V, 3)
+    assert (np.einsum("lvc,lvc->lv", v[:, :half] - flat[:, :half], n[:, :half]) > 0).mean() > 0.95
+    # the input frame gets the same push, mapped by asset_to_input
+    inp = evaluate(a, separate_sheets=True).vertices
+    m = a.asset_to_input
+    assert np.allclose(inp, sep.vertices @ m[:3, :3].T + m[:3, 3], atol=1e-9)
