@@ -30,3 +30,10 @@ bench: $(STAMP)
 
 clean:
 	rm -rf $(VENV) out build *.egg-info
+
+# Optional (not part of `make test`): import a LeafFit stage into Blender 4.2 (bpy module, headless,
+# separate venv in build/, ~0.5 GB) and check instances, material slots and textures.
+# make dcc-check [DCC_FILE=out/plant.usda]   (default: the usd tests' synthetic plant)
+dcc-check: $(STAMP)
+	test -x build/dcc-venv/bin/python || { $(PYTHON) -m venv build/dcc-venv && build/dcc-venv/bin/pip install -q 'bpy==4.2.0' 'numpy<2'; }
+	set -e; stage=$$($(PY) tests/usd/dcc/make_stage.py $(DCC_FILE)); build/dcc-venv/bin/python tests/usd/dcc/blender_check.py $$stage

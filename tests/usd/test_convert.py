@@ -1,7 +1,7 @@
 """``leaffit-usd convert`` end to end (a small generated plant) and its failure modes.
 
 The full-size sample plants are converted by benchmarks/size.py (minutes each on 2 cores);
-here a 4-leaf, 6,000-Gaussian plant with reduced iteration counts keeps the test fast while
+here a 3-leaf, 4,000-Gaussian plant with reduced iteration counts keeps the test fast while
 running every real stage.
 """
 import importlib.util
@@ -17,7 +17,7 @@ STAGES = ["leaffit_usd.segment.auto", "leaffit_usd.fit.register", "leaffit_usd.m
 MISSING = [m for m in STAGES if importlib.util.find_spec(m) is None]
 needs_stages = pytest.mark.skipif(bool(MISSING), reason=f"stage modules missing: {MISSING}")
 
-FAST = ["-K", "12", "--steps", "8", "--n-samples", "1024", "--n-neighbors", "128",
+FAST = ["-K", "12", "--steps", "4", "--n-samples", "1024", "--n-neighbors", "128",
         "--vertex-budget", "256", "--bake-size", "128", "--texture-size", "128"]
 
 
@@ -26,7 +26,7 @@ def small_plant(tmp_path_factory):
     from samples.generate import PlantSpec, make_plant, save_plant
 
     d = tmp_path_factory.mktemp("plant")
-    cloud, gt = make_plant(PlantSpec(kind="elliptic", leaves=4, gaussians=6000, holes=0.0,
+    cloud, gt = make_plant(PlantSpec(kind="elliptic", leaves=3, gaussians=4000, holes=0.0,
                                      floaters=0.0, height=0.5), seed=3)
     ply, gtp = save_plant(cloud, gt, d, "small")
     return ply, gtp

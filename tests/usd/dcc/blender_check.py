@@ -1,0 +1,51 @@
+"""Import a LeafFit stage into Blender (bpy module, headless) and check what a DCC user sees.
+
+Run with the bpy venv (``make dcc-check``), NOT under pytest:
+
+    build/dcc-venv/bin/python tests/usd/dcc/blender_check.py plant.usda EXPECTED_LEAVES
+
+Checks: the PointInstancer arrives as EXPECTED_LEAVES instances of the template leaf; the
+template mesh has two material slots (front, back) whose node trees read an image texture that
+loaded (non-zero size); the stem mesh exists. Prints one line per check; exit 1 on failure.
+"""
+import sys
+
+import bpy
+
+
+def main(path: str, expected: int) -> int:
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    res = bpy.ops.wm.usd_import(filepath=path)
+    if "FINISHED" not in res:
+        print(f"FAIL import: {res}")
+        return 1
+    ok = True
+
+    def check(cond, msg):
+        nonlocal ok
+        print(("ok   " if cond else "FAIL ") + msg)
+        ok &= bool(cond)
+
+    meshes = {o.name: o for o in bpy.data.objects if o.type == "MESH"}
+    print("objects:", sorted((o.name, o.type) for o in bpy.data.objects))
+    tmpl = next((o for n, o in meshes.items() if "TemplateLeaf" in n), None)
+    check(tmpl is not None, "template leaf mesh imported")
+    if tmpl is not None:
+        mats = [s.material for s in tmpl.material_slots if s.material]
+        check(len(mats) == 2, f"template has 2 material slots ({[m.name for m in mats]})")
+        for m in mats:
+            imgs = [n.image for n in m.node_tree.nodes if n.type == "TEX_IMAGE" and n.image] if m.use_nodes else []
+            check(bool(imgs) and all(i.size[0] > 0 and i.size[1] > 0 for i in imgs),
+                  f"material {m.name} reads a loaded image texture "
+                  f"({[(i.filepath, tuple(i.size)) for i in imgs]})")
+    check(any("Stem" in n for n in meshes), "stem mesh imported")
+    dg = bpy.context.evaluated_depsgraph_get()
+    n_inst = sum(1 for inst in dg.object_instances
+                 if inst.is_instance and "TemplateLeaf" in inst.object.name)
+    check(n_inst == expected, f"{n_inst} leaf instances, expected {expected}")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:]
+    sys.exit(main(argv[0], int(argv[1])))
