@@ -36,7 +36,9 @@ Choices the paper leaves open, and deviations (each with its reason; all switcha
 * Petiole (``blade_first``): the base can be found only after the march crossed the blade
   (diameter >= epsilon once), besides the protection window; long tapering tips otherwise stop
   the march early. An instance whose diameter never reaches epsilon has no blade (e.g. the top of
-  a bare stem) and is dropped (``require_blade``).
+  a bare stem) and is dropped (``require_blade``). From the first node under epsilon the base
+  moves on to where the diameter reaches the petiole's own (``base_refine``): a blade's base is
+  narrower than epsilon over ~10% of its length.
 * A Gaussian claimed by several leaves goes to the one where it lies deepest (smallest
   ``D_a / base distance``).
 * With ``normals`` (each flat Gaussian's smallest-scale axis), the geodesic operator drops elements
@@ -88,6 +90,9 @@ class SegmentParams:
     blade_first : the petiole base can only be found after the march has crossed the blade
         (a node with diameter >= epsilon): the protection window's purpose, without its failure on
         long tapering tips (ours; True)
+    base_refine : from the first node under epsilon, move on to where the blade has narrowed to
+        the petiole's own diameter (ours; True): an elliptic blade's base is narrower than epsilon
+        over ~10% of its length, which the paper's rule leaves to the stem
     require_blade : drop an instance whose local diameter never reaches epsilon (ours; True)
     seed : seed of the random domain subset
     """
@@ -107,6 +112,7 @@ class SegmentParams:
     apex_surface_neighbors: bool = True
     require_blade: bool = True
     blade_first: bool = True
+    base_refine: bool = True
     seed: int = 0
 
     def validate(self) -> "SegmentParams":
@@ -454,18 +460,44 @@ def _petiole_base(pts, d_a, path_g, junction_g, p: SegmentParams):
     order = cand[np.argsort(d_a[cand], kind="stable")]
     sd = d_a[order]
     has_blade = False
-    for k in range(1, len(path_g)):
+
+    def diameter(k):
         c = dvals[k]
-        lo, hi = np.searchsorted(sd, [c - p.delta / 2, c + p.delta / 2], side="left")
+        lo = np.searchsorted(sd, c - p.delta / 2, side="left")
         hi = np.searchsorted(sd, c + p.delta / 2, side="right")
         band = order[lo:hi]
-        diam = float(np.sqrt(((pts[band] - pts[path_g[k]]) ** 2).sum(1).max())) if len(band) else 0.0
+        return float(np.sqrt(((pts[band] - pts[path_g[k]]) ** 2).sum(1).max())) if len(band) else 0.0
+
+    for k in range(1, len(path_g)):
+        c = dvals[k]
+        diam = diameter(k)
         if diam >= p.epsilon:
             has_blade = True
         if c >= protect and diam < p.epsilon and (has_blade or not p.blade_first):
-            return int(path_g[k]), float(c), has_blade
+            if p.base_refine:
+                k = _refine_base(k, diam, dvals, diameter, p)
+            return int(path_g[k]), float(dvals[k]), has_blade
     # never narrower than epsilon before the root: base at the first junction
     return int(path_g[junction]), float(dvals[junction]), has_blade
+
+
+def _refine_base(k0, d0, dvals, diameter, p: SegmentParams) -> int:
+    """From the first node under epsilon, move on to where the blade has narrowed to the
+    petiole's own diameter: the least diameter within 2 epsilon further on (the petiole plateau),
+    and the first node within max(1.25 x, + delta) of it."""
+    ks = [k0]
+    ds = [d0]
+    k = k0 + 1
+    while k < len(dvals) and dvals[k] <= dvals[k0] + 2 * p.epsilon:
+        ks.append(k)
+        ds.append(diameter(k))
+        k += 1
+    plateau = min(ds)
+    level = max(1.25 * plateau, plateau + p.delta)
+    for kk, dd in zip(ks, ds):
+        if dd <= level:
+            return kk
+    return k0
 
 
 def _result(n, root, samples, tree, apex_g, apex_labels, leaf_tip, leaf_base, labels, d_root, prm):
