@@ -91,10 +91,18 @@ def automatic_labels(cloud, up="auto", root="auto", root_index=None):
     from leaffit_usd.segment.auto import SegmentParams
     from leaffit_usd.splats.frame import make_frame, transform_cloud
 
-    choice = make_frame(cloud, up=up, root=root, root_index=root_index)
+    from leaffit_usd.errors import UserError
+
+    choice = make_frame(cloud, up=up, root=root, root_index=root_index)  # bad --up/--root: an error
     cw = transform_cloud(cloud, choice.frame.input_to_working)
-    seg = _auto_segment(cw, choice.root_index, SegmentParams())
-    return np.asarray(seg.labels, np.int32), int(choice.root_index), choice.frame
+    try:
+        labels = np.asarray(_auto_segment(cw, choice.root_index, SegmentParams()).labels, np.int32)
+        log.info("edit: %d leaves found", int(labels.max(initial=0)))
+    except UserError as e:  # a plant the automatic method cannot handle is what edit is for
+        log.warning("edit: automatic segmentation failed (%s); starting with every Gaussian "
+                    "unassigned", e)
+        labels = np.zeros(len(cloud), np.int32)
+    return labels, int(choice.root_index), choice.frame
 
 
 def _open_browser(url: str) -> None:
@@ -134,7 +142,6 @@ def run(args) -> int:
     else:
         log.info("edit: automatic segmentation (as convert does; --empty to skip, --labels to reuse one)")
         labels, root, frame = automatic_labels(cloud, args.up, args.root, args.root_index)
-        log.info("edit: %d leaves found", int(labels.max(initial=0)))
     edits = load_edits(args.edits, inp) if args.edits else None
     stem = inp.name.rsplit(".", 1)[0]
     edits_out = Path(args.edits_out) if args.edits_out else inp.with_name(stem + ".edits.json")

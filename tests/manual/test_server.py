@@ -203,3 +203,28 @@ def test_cli_missing_input(capsys, tmp_path):
 
     assert main(["edit", str(tmp_path / "nope.ply"), "--no-browser"]) == 2
     assert "nope.ply" in capsys.readouterr().err
+
+
+def test_automatic_start_and_its_fallback(plant, monkeypatch, caplog):
+    """edit starts from convert's automatic segmentation; if that fails, from an empty one."""
+    import logging
+
+    from leaffit_usd.commands.edit import automatic_labels
+    from leaffit_usd.errors import UserError
+
+    cloud = plant[0]
+    labels, root, frame = automatic_labels(cloud, up="+z")
+    assert labels.shape == (len(cloud),) and labels.dtype == np.int32 and 0 <= root < len(cloud)
+    assert frame.height > 0
+
+    def fail(*a, **k):
+        raise UserError("no apex found")
+
+    monkeypatch.setattr("leaffit_usd.pipeline._auto_segment", fail)
+    with caplog.at_level(logging.WARNING, logger="leaffit_usd"):
+        labels, _, _ = automatic_labels(cloud, up="+z")
+    assert not labels.any() and "automatic segmentation failed" in caplog.text
+    from leaffit_usd.errors import ParameterError
+
+    with pytest.raises(ParameterError):  # a bad --up is an error, not a fallback
+        automatic_labels(cloud, up="sideways")
