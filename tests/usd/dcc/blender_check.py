@@ -2,7 +2,7 @@
 
 Run with the bpy venv (``make dcc-check``), NOT under pytest:
 
-    build/dcc-venv/bin/python tests/usd/dcc/blender_check.py plant.usda EXPECTED_LEAVES
+    build/dcc-venv/bin/python tests/usd/dcc/blender_check.py plant.usda EXPECTED_LEAVES [EXPECTED.json]
 
 Checks: the PointInstancer arrives as EXPECTED_LEAVES instances of the template leaf; the
 template mesh has two material slots (front, back) whose node trees read an image texture that
@@ -13,7 +13,7 @@ import sys
 import bpy
 
 
-def main(path: str, expected: int) -> int:
+def main(path: str, expected: int, expect_json: str | None = None) -> int:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     res = bpy.ops.wm.usd_import(filepath=path)
     if "FINISHED" not in res:
@@ -43,9 +43,27 @@ def main(path: str, expected: int) -> int:
     n_inst = sum(1 for inst in dg.object_instances
                  if inst.is_instance and "TemplateLeaf" in inst.object.name)
     check(n_inst == expected, f"{n_inst} leaf instances, expected {expected}")
+    if expect_json:
+        import json
+
+        import numpy as np
+        data = json.load(open(expect_json))
+        want = np.asarray(data["matrices"])
+        if data["up_axis"] == "Y":  # Blender converts a Y-up stage to Z-up: +90 degrees about X
+            conv = np.array([[1, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 0], [0, 0, 0, 1.0]])
+            want = conv @ want
+        got = np.array([np.array(inst.matrix_world) for inst in dg.object_instances
+                        if inst.is_instance and "TemplateLeaf" in inst.object.name])
+        if len(got) == len(want):
+            errs = []
+            for w in want:  # match by translation (Blender's instance order is its own)
+                k = np.argmin(np.linalg.norm(got[:, :3, 3] - w[:3, 3], axis=1))
+                errs.append(np.abs(got[k] - w).max() / max(np.abs(w[:3, :3]).max(), 1e-12))
+            # quath orientations: ~1e-3 relative
+            check(max(errs) < 5e-3, f"instance transforms match the stage (max rel. error {max(errs):.1e})")
     return 0 if ok else 1
 
 
 if __name__ == "__main__":
     argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:]
-    sys.exit(main(argv[0], int(argv[1])))
+    sys.exit(main(argv[0], int(argv[1]), argv[2] if len(argv) > 2 else None))

@@ -1,4 +1,5 @@
-"""Stage for ``make dcc-check``: prints 'PATH LEAVES' for blender_check.py.
+"""Stage for ``make dcc-check``: prints 'PATH LEAVES EXPECTED.json' for blender_check.py
+(the JSON holds each instance's 4x4 transform in the stage's frame).
 
     python tests/usd/dcc/make_stage.py [PLANT.usda]
 
@@ -24,10 +25,24 @@ def main() -> int:
         from leaffit_usd.usd.writer import LeafTextures, write_stage
 
         t = syn.template_mesh(tex=256)
-        asset = asset_from_results(t, syn.leaf_fits(t), syn.stem(), syn.frame(), up_axis="Z")
+        asset = asset_from_results(t, syn.leaf_fits(t), syn.stem(), syn.frame(), up_axis="Y")
         path = HERE.parent.parent.parent / "build" / "dcc" / "plant.usda"
         write_stage(path, asset, LeafTextures(t.front_texture, t.back_texture))
-    print(path.resolve(), read_stage(path).n_leaves)
+    import json
+
+    import numpy as np
+
+    from leaffit_usd.splats.cloud import quat_to_matrix
+
+    a = read_stage(path)
+    m = np.zeros((a.n_leaves, 4, 4))
+    m[:, :3, :3] = quat_to_matrix(a.orientations.astype(np.float64)) * a.scales[:, None, :]
+    m[:, :3, 3] = a.positions
+    m[:, 3, 3] = 1
+    up = a.metadata.get("up_axis", "Y")
+    expect = path.with_suffix(".instances.json")
+    expect.write_text(json.dumps({"up_axis": up, "matrices": m.tolist()}))
+    print(path.resolve(), a.n_leaves, expect.resolve())
     return 0
 
 
