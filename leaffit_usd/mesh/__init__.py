@@ -1,1 +1,11 @@
-"""Template leaf mesh extraction, UVs and two-sided texture bake, stem cylinders."""
+"""Template leaf mesh extraction, UVs and two-sided texture bake, stem cylinders.
+
+Entry points: :func:`leaffit_usd.mesh.template.build_template_mesh` (+ ``MeshParams``,
+``write_textures``) and :func:`leaffit_usd.mesh.stem.build_stem` (+ ``StemParams``).
+"""
+from leaffit_usd.mesh.result import Stem, TemplateMesh
+from leaffit_usd.mesh.stem import StemParams, build_stem
+from leaffit_usd.mesh.template import MeshParams, build_template_mesh, read_image, write_textures
+
+__all__ = ["TemplateMesh", "Stem", "MeshParams", "build_template_mesh", "write_textures",
+           "read_image", "StemParams", "build_stem"]
