@@ -39,6 +39,10 @@ Choices the paper leaves open, and deviations (each with its reason; all switcha
   a bare stem) and is dropped (``require_blade``). From the first node under epsilon the base
   moves on to where the diameter reaches the petiole's own (``base_refine``): a blade's base is
   narrower than epsilon over ~10% of its length.
+* Grouping (``lca_on_blade``): besides the tau test, both paths must reach the LCA over a blade
+  (a cross-section ring at least epsilon wide just above it); apexes whose paths come down
+  petioles to meet on a stem are different leaves, even when touching blades short-cut the
+  geodesic between them.
 * A Gaussian claimed by several leaves goes to the one where it lies deepest (smallest
   ``D_a / base distance``).
 * With ``normals`` (each flat Gaussian's smallest-scale axis), the geodesic operator drops elements
@@ -93,6 +97,10 @@ class SegmentParams:
     base_refine : from the first node under epsilon, move on to where the blade has narrowed to
         the petiole's own diameter (ours; True): an elliptic blade's base is narrower than epsilon
         over ~10% of its length, which the paper's rule leaves to the stem
+    lca_on_blade : two apexes are grouped only if both their paths come to the LCA over a blade
+        (a cross-section ring at least epsilon wide within epsilon of D_r above it), besides the
+        tau test (ours; True): paths that come down petioles to meet on a stem belong to
+        different leaves, whatever a geodesic short-cut between two touching blades says
     require_blade : drop an instance whose local diameter never reaches epsilon (ours; True)
     seed : seed of the random domain subset
     """
@@ -113,6 +121,7 @@ class SegmentParams:
     require_blade: bool = True
     blade_first: bool = True
     base_refine: bool = True
+    lca_on_blade: bool = True
     seed: int = 0
 
     def validate(self) -> "SegmentParams":
@@ -136,9 +145,10 @@ class SegmentParams:
 
 @dataclass
 class _Tree:
-    nodes: list          # sample Gaussian indices, in insertion order
+    nodes: list          # domain positions, in insertion order
     parent: list         # index into nodes, -1 for the root
-    pos: dict            # Gaussian index -> node index
+    pos: dict            # domain position -> node index
+    ring: np.ndarray | None = None  # (M,) cross-section ring id of every domain point
 
 
 def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentParams | None = None,
@@ -252,11 +262,34 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
     def da(j, gauss):  # D_a of apex j at Gaussians that are domain nodes (samples are)
         return Dd[solver._near[gauss], j]
 
+    widths = {}
+
+    def ring_width(node_d):  # surface cross-section width at a domain point: its ring's extent
+        r = int(tree.ring[node_d])
+        if r not in widths:
+            mem = solver._x[tree.ring == r]
+            widths[r] = float(np.sqrt(((mem - solver._x[node_d]) ** 2).sum(1).max())) if len(mem) else 0.0
+        return widths[r]
+
+    def on_blade(i, k_lca, lca):
+        """Does apex i's path cross a ring at least epsilon wide within epsilon (in D_r) before
+        reaching the LCA? (Lobes of one blade meet where the blade fans out; two leaves meet on
+        the stem, each coming down a petiole.)"""
+        d0 = dr_dom[tree.nodes[lca]]
+        for v in anc[i][:k_lca][::-1].tolist():
+            node_d = tree.nodes[v]
+            if dr_dom[node_d] > d0 + p.epsilon:
+                return False
+            if ring_width(node_d) >= p.epsilon:
+                return True
+        return False
+
     adj_r, adj_c = [], []
     anc = [np.asarray(pth) for pth in apex_paths]  # tree node indices, apex -> root
     for i in range(A):
         set_i = {v: k for k, v in enumerate(anc[i].tolist())}
         for j in range(i + 1, A):
+            pos_j = {v: k for k, v in enumerate(anc[j].tolist())}
             lca = next((v for v in anc[j].tolist() if v in set_i), None)
             if lca is None:
                 continue
@@ -265,7 +298,8 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
             via = da(i, lca_g) + da(j, lca_g)
             log.debug("apex pair %d,%d: direct %.3f via lca %.3f (lca D_r %.3f)", i, j, direct, via,
                       d_root[lca_g])
-            if direct < via - p.tau:
+            if direct < via - p.tau and (not p.lca_on_blade or (on_blade(i, set_i[lca], lca)
+                                                                and on_blade(j, pos_j[lca], lca))):
                 adj_r.append(i), adj_c.append(j)
     g = coo_matrix((np.ones(len(adj_r)), (adj_r, adj_c)), shape=(A, A))
     _, group = connected_components(g, directed=False)
@@ -431,6 +465,7 @@ def _build_tree(solver: GeodesicSolver, dr_dom, apex_g, root, p: SegmentParams):
             par_node = tree.pos[v]
             ring_nodes.setdefault(int(ring[v]), []).append(par_node)
         paths.append(_path_to_root(tree, tree.pos[a_d]))
+    tree.ring = ring
     return tree, paths
 
 
