@@ -16,6 +16,8 @@ from leaffit_usd.splats.cloud import GaussianCloud, matrix_to_quat
 
 TOP_RGB = (0.15, 0.55, 0.12)
 BOTTOM_RGB = (0.65, 0.80, 0.45)
+MARK_TOP = (0.85, 0.10, 0.10)
+MARK_BOTTOM = (0.10, 0.15, 0.85)
 
 
 def leaf_surface(u: np.ndarray, v: np.ndarray, length=1.0, width=0.4, cup=0.25, arch=0.15):
@@ -55,14 +57,16 @@ def _similarity(rng, scale):
 
 def synthetic_leaf(n: int = 6000, seed: int = 0, two_sided: bool = True, thickness: float = 0.004,
                    noise: float = 0.002, scale: float = 0.2, length=1.0, width=0.4, cup=0.25,
-                   arch=0.15, holes: bool = False) -> tuple[GaussianCloud, LeafFits]:
+                   arch=0.15, holes: bool = False, marker: bool = False) -> tuple[GaussianCloud, LeafFits]:
     """A leaf of ``n`` flat Gaussians in the working frame and its ``LeafFits`` (one leaf).
 
     The template local frame is the leaf's own (petiole base at the origin, +X to the apex, +Z up
     the leaf); ``leaf_to_working`` is a random similarity of scale ``scale``. ``two_sided``: half
     the Gaussians lie ``thickness/2`` above the mid-surface (green, the front) and half below
     (pale, the back); otherwise one green layer. ``holes``: leave a round gap in the blade (a
-    missing patch of the capture). template_points = mid-surface positions + ``noise`` (as the
+    missing patch of the capture). ``marker``: the quarter u < 0.4, v > 0.3 (base half, +Y side)
+    is red on the top layer and blue on the bottom layer (catches mirrored or flipped textures).
+    template_points = mid-surface positions + ``noise`` (as the
     fit's denoising would leave them).
     """
     rng = np.random.default_rng(seed)
@@ -90,6 +94,10 @@ def synthetic_leaf(n: int = 6000, seed: int = 0, two_sided: bool = True, thickne
     vein = np.abs(v * np.sin(np.pi * u) ** 0.7) < 0.04
     rgb = np.where(vein[:, None], rgb * np.where(top, 0.6, 1.15)[:, None], rgb)
     rgb = np.clip(rgb + rng.normal(0, 0.02, rgb.shape), 0, 1)
+    if marker:
+        quarter = (u < 0.4) & (v > 0.3)
+        rgb[quarter & top] = MARK_TOP
+        rgb[quarter & ~top] = MARK_BOTTOM
     M = _similarity(rng, scale)
     sc = scale
     R = M[:3, :3] / sc

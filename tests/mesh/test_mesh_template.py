@@ -197,3 +197,24 @@ def test_mesh_value_serialises(leaf_mesh, tmp_path):
     back = load_value(TemplateMesh, tmp_path / "m.npz")
     assert np.array_equal(back.faces, leaf_mesh.faces) and np.array_equal(back.back_texture, leaf_mesh.back_texture)
     assert back.report["sheet_vertices"] == leaf_mesh.report["sheet_vertices"]
+
+
+def test_textures_not_mirrored_or_flipped():
+    """A red (top) / blue (bottom) patch on the base half's +Y side shows up under exactly the
+    vertices of that patch in each side's texture: catches a row flip or a wrong back mirror."""
+    cloud, fits = synthetic_leaf(2500, seed=6, marker=True)
+    m = build_template_mesh(cloud, fits, MeshParams(vertex_budget=500, texture_size=96))
+    S_ = len(m.points) // 2
+    p = m.sheet_points
+    x01 = (p[:, 0] - p[:, 0].min()) / np.ptp(p[:, 0])
+    patch = (x01 > 0.1) & (x01 < 0.3) & (p[:, 1] > 0.1)
+    mirror = (x01 > 0.1) & (x01 < 0.3) & (p[:, 1] < -0.1)
+    assert patch.sum() > 5 and mirror.sum() > 5
+    f_in = _texel(m.front_texture, m.uvs[:S_][patch]).astype(float)
+    b_in = _texel(m.back_texture, m.uvs[S_:][patch]).astype(float)
+    f_out = _texel(m.front_texture, m.uvs[:S_][mirror]).astype(float)
+    b_out = _texel(m.back_texture, m.uvs[S_:][mirror]).astype(float)
+    assert (f_in[:, 0] > f_in[:, 1] + 50).mean() > 0.8      # red on the front
+    assert (b_in[:, 2] > b_in[:, 1] + 50).mean() > 0.8      # blue on the back
+    assert (f_out[:, 1] > f_out[:, 0]).mean() > 0.9          # green at the mirror position
+    assert (b_out[:, 1] > b_out[:, 2]).mean() > 0.9
