@@ -16,6 +16,9 @@ with both depth maps; every instance's MLS targets are then refitted so the new 
 old one. The new stage uses the source leaf's mesh and textures.
 
   --source-leaf OTHER.usda   another LeafFit plant: its template leaf is used
+  --source-leaf LEAF.ply     a 3DGS capture of one leaf (with or without its petiole): it is
+                             meshed and baked like a template (base = petiole end, apex = the
+                             other end of its long axis)
 
 Example:
   leaffit-usd retarget pepper.usda --source-leaf maple.usda -o pepper_maple.usda --report r.json
@@ -27,8 +30,14 @@ log = logging.getLogger("leaffit_usd")
 def add_arguments(parser) -> None:
     parser.add_argument("stage", help="the LeafFit plant to retarget (.usda/.usdc/.usdz)")
     parser.add_argument("--source-leaf", required=True,
-                        help="a LeafFit stage whose template leaf replaces this plant's")
+                        help="a LeafFit stage whose template leaf replaces this plant's, or a "
+                             "single-leaf 3DGS capture (.ply / USD splats)")
     parser.add_argument("-o", "--output", required=True, help="the new stage (.usda/.usdc/.usdz)")
+    parser.add_argument("--source-base", metavar="X,Y,Z",
+                        help="single-leaf capture only: the petiole base (nearest Gaussian, the "
+                             "capture's frame); default: detected")
+    parser.add_argument("--source-apex", metavar="X,Y,Z",
+                        help="single-leaf capture only: the leaf tip; default: detected")
     parser.add_argument("--cage-points", type=int, default=32,
                         help="cage vertices per leaf side (default 32)")
     parser.add_argument("--samples", type=int, default=512,
@@ -36,9 +45,24 @@ def add_arguments(parser) -> None:
     parser.add_argument("--report", help="write per-instance silhouette IoU etc. as JSON")
 
 
+def _point(text, name):
+    from leaffit_usd.errors import ParameterError
+
+    if text is None:
+        return None
+    try:
+        v = [float(t) for t in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 3:
+        raise ParameterError(name, "a point X,Y,Z", text)
+    return v
+
+
 def run(args) -> int:
     from leaffit_usd.edit.plant_io import load_plant, save_plant
     from leaffit_usd.edit.retarget import RetargetParams, retarget_asset
+    from leaffit_usd.edit.source_leaf import load_source_leaf
     from leaffit_usd.errors import ParameterError
     from leaffit_usd.io_util import atomic_write_bytes
 
@@ -50,7 +74,8 @@ def run(args) -> int:
     if out.suffix.lower() not in (".usda", ".usdc", ".usd", ".usdz"):
         raise ParameterError("-o/--output", "a .usda/.usdc/.usd/.usdz file", str(out))
     target = load_plant(args.stage)
-    source = load_plant(args.source_leaf)
+    source = load_source_leaf(args.source_leaf, _point(args.source_base, "--source-base"),
+                              _point(args.source_apex, "--source-apex"))
     new_asset, report = retarget_asset(target.asset, source.asset,
                                        RetargetParams(n_side=args.cage_points, n_samples=args.samples))
     target.asset, target.front, target.back = new_asset, source.front, source.back

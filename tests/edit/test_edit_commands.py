@@ -100,3 +100,30 @@ def test_retarget_command(tmp_path, plant):
     new = load_plant(out)
     assert new.front[..., 0].mean() > 0.7        # the source species' texture
     assert not validate_file(out).failed()
+
+
+def test_retarget_from_a_single_leaf_capture(tmp_path, plant):
+    from leaffit_usd.splats import GaussianCloud, write_ply
+    from tests.edit.test_retarget import _leaf_capture
+
+    pts = _leaf_capture(n=3000, seed=3) * 0.05
+    rng = np.random.default_rng(0)
+    n = len(pts)
+    cloud = GaussianCloud.from_activated(pts, np.full((n, 3), 0.002), np.tile([1, 0, 0, 0], (n, 1)),
+                                         np.full(n, 0.9), np.tile([0.7, 0.2, 0.1], (n, 1)) + 0.05 * rng.random((n, 3)))
+    write_ply(cloud, tmp_path / "leaf.ply")
+    out = tmp_path / "r.usda"
+    report = tmp_path / "r.json"
+    assert main(["retarget", str(plant), "--source-leaf", str(tmp_path / "leaf.ply"), "-o", str(out),
+                 "--report", str(report), "-q"]) == 0
+    import json
+    assert json.loads(report.read_text())["iou_min"] >= 0.8
+    assert not validate_file(out).failed()
+    # a round "leaf" has no apex: exit 2, nothing written
+    r, a = np.sqrt(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n)
+    disc = np.c_[r * np.cos(a), r * np.sin(a), np.zeros(n)] * 0.05
+    write_ply(GaussianCloud.from_activated(disc, np.full((n, 3), 0.002), np.tile([1, 0, 0, 0], (n, 1)),
+                                           np.full(n, 0.9)), tmp_path / "disc.ply")
+    out2 = tmp_path / "r2.usda"
+    assert main(["retarget", str(plant), "--source-leaf", str(tmp_path / "disc.ply"), "-o", str(out2)]) == 2
+    assert not out2.exists()

@@ -54,3 +54,43 @@ def test_cross_species_retarget_covers_every_silhouette(src):
     np.testing.assert_array_equal(new.positions, target.positions)
     assert np.isfinite(new.targets).all()
     np.testing.assert_allclose(silhouette_ious(target, new), report["iou"])
+
+
+def _leaf_capture(n=4000, petiole_at_low_end=True, seed=0, width=0.35):
+    """Gaussian centres of a blade (length 1) plus a thin petiole (length 0.3) at one end."""
+    rng = np.random.default_rng(seed)
+    t = rng.uniform(0, 1, n)
+    half = width * np.sin(np.pi * t) ** 0.7
+    blade = np.c_[t, rng.uniform(-1, 1, n) * half, 0.01 * rng.normal(size=n)]
+    s = rng.uniform(0, 1, n // 10)
+    pet = np.c_[-0.3 * s, 0.005 * rng.normal(size=len(s)), 0.005 * rng.normal(size=len(s))]
+    pts = np.vstack([blade, pet])
+    if not petiole_at_low_end:
+        pts[:, 0] = 1.0 - pts[:, 0]
+    rot = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    return pts @ rot.T + rng.normal(size=3)
+
+
+@pytest.mark.parametrize("low", [True, False])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_source_leaf_base_is_the_petiole_end(low, seed):
+    from leaffit_usd.edit.source_leaf import find_base_apex
+
+    pts = _leaf_capture(petiole_at_low_end=low, seed=seed)
+    b, a = find_base_apex(pts)
+    # petiole tip is 1.3 from the apex; the base found must be the petiole end
+    assert np.linalg.norm(pts[b] - pts[a]) > 1.2
+    n_blade = 4000
+    assert b >= n_blade  # a petiole Gaussian
+
+
+def test_round_source_leaf_has_no_apex():
+    from leaffit_usd.edit.source_leaf import find_base_apex
+
+    rng = np.random.default_rng(0)
+    r, a = np.sqrt(rng.uniform(0, 1, 3000)), rng.uniform(0, 2 * np.pi, 3000)
+    disc = np.c_[r * np.cos(a), r * np.sin(a), 0.01 * rng.normal(size=3000)]
+    with pytest.raises(UserError):
+        find_base_apex(disc)
+    with pytest.raises(UserError):
+        find_base_apex(disc[:10])
