@@ -135,8 +135,8 @@ def test_missing_template_row_is_reported(leaf):
         build_template_mesh(cloud, dataclasses.replace(fits, template_label=7), MeshParams(**SMALL))
 
 
-def test_deterministic(leaf):
-    cloud, fits = leaf
+def test_deterministic():
+    cloud, fits = synthetic_leaf(1000, seed=8)
     a = build_template_mesh(cloud, fits, MeshParams(**SMALL))
     b = build_template_mesh(cloud, fits, MeshParams(**SMALL))
     assert np.array_equal(a.points, b.points) and np.array_equal(a.faces, b.faces)
