@@ -135,6 +135,7 @@ def build_sheet(samples: np.ndarray, params: MeshParams) -> tuple[surf.Sheet, di
     warning, never raises for degenerate input.
     """
     tried = []
+    best = None
     spacing = surf.sample_spacing(samples) if len(samples) >= 2 else 1.0
     order = {"auto": ("bpa", "planar"), "bpa": ("bpa", "planar"), "planar": ("planar",)}[params.method]
     for method in order:
@@ -167,12 +168,13 @@ def build_sheet(samples: np.ndarray, params: MeshParams) -> tuple[surf.Sheet, di
             checks["fallback_reasons"] = tried
             return sheet, checks
         tried.append(f"{method}: " + ", ".join(problems))
-        last = (sheet, checks)
-        if method == order[-1] and len(sheet.faces):
-            log.warning("mesh: template surface is not a clean disk (%s); keeping the %s result",
-                        "; ".join(tried), method)
-            checks["fallback_reasons"] = tried
-            return last
+        if len(sheet.faces) and (best is None or (not best[1]["is_disk"] and checks["is_disk"])):
+            best = (sheet, checks)
+    if best is not None:  # nothing passed every check: keep the best surface there is
+        log.warning("mesh: template surface is not a clean disk (%s); keeping the %s result",
+                    "; ".join(tried), best[0].info.get("method"))
+        best[1]["fallback_reasons"] = tried
+        return best
     log.warning("mesh: no surface could be built from %d template points (%s); using a quad",
                 len(samples), "; ".join(tried))
     sheet = surf.fallback_quad(samples)
@@ -504,7 +506,9 @@ def quality_report(mesh: TemplateMesh, cloud_working, fits, sheet, checks, tinfo
         e = F[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
         l3 = np.linalg.norm(P[e[:, 0]] - P[e[:, 1]], axis=1)
         l2 = np.linalg.norm(P[e[:, 0], :2] - P[e[:, 1], :2], axis=1)
-        rep["uv_stretch_max"] = float((l3 / np.maximum(l2, 1e-12)).max())
+        stretch = l3 / np.maximum(l2, 1e-12)
+        rep["uv_stretch_max"] = float(stretch.max())
+        rep["uv_stretch_p99"] = float(np.percentile(stretch, 99))
         ang = surf._tri_min_angle(P, F)
         rep["min_angle_deg_p5"] = float(np.percentile(ang, 5))
     rep.update({k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in tinfo.items()})
