@@ -63,6 +63,9 @@ class PlantSpec:
     height : approximate plant height, metres (canonical frame); None = random 0.3-1.2
     branches, side_shoots : counts; None = random
     floaters : fraction of Gaussians that are floaters (label -1)
+    surface_noise : typical std (metres) of blade Gaussians off the surface; each leaf draws its
+        own level around it (x0.2..x3), 4 % of Gaussians get 4x that
+    fuzz : fraction of blade Gaussians floating 0-8 mm off the surface (large, faint)
     holes : fraction of leaves with a poorly reconstructed patch (almost no Gaussians there;
         their GT mesh stays complete)
     variation : per-leaf shape/size variation scale (0 = identical leaves)
@@ -87,6 +90,8 @@ class PlantSpec:
     side_shoots: int | None = None
     floaters: float = 0.003
     holes: float = 0.15
+    surface_noise: float = 0.0006
+    fuzz: float = 0.02
     variation: float = 1.0
     palette: tuple | None = None
     glossy: float = 0.5
@@ -247,8 +252,23 @@ def save_plant(cloud: GaussianCloud, gt: GroundTruth, directory, name: str) -> t
 
 
 def load_ground_truth(path) -> GroundTruth:
-    """Read a ``NAME.gt.npz`` written by :func:`save_plant`."""
-    with np.load(path, allow_pickle=False) as z:
+    """Read a ``NAME.gt.npz`` written by :func:`save_plant`.
+
+    Raises ``InputFileError`` when the file is missing, not an npz, or lacks a field.
+    """
+    from leaffit_usd.errors import InputFileError
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(path, "no such file")
+    try:
+        z = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as e:
+        raise InputFileError(path, f"not a ground-truth .npz ({e})") from None
+    with z:
+        missing = [f.name for f in dataclasses.fields(GroundTruth) if f.name not in z.files]
+        if missing:
+            raise InputFileError(path, f"not a samples ground-truth file: missing {', '.join(missing)}")
         kw = {}
         for f in dataclasses.fields(GroundTruth):
             v = z[f.name]
@@ -454,9 +474,10 @@ def _build(spec: PlantSpec, rng: np.random.Generator):
 
     for k in br_leaves:
         t0 = float(rng.uniform(0.25, 0.6)) if habit != "cane" else float(rng.uniform(0.2, 0.7))
-        ln = H * float(rng.uniform(0.15, 0.35))
+        # branch length grows with the leaves it carries (no long bare branches)
+        ln = H * float(rng.uniform(0.1, 0.2)) * float(np.clip(np.sqrt(k / 2.0), 1.0, 2.0))
         a = add_axis(t0, ln, float(rng.uniform(0.5, 1.0)), float(rng.uniform(0, 2 * np.pi)), 0.6)
-        slots += [(a, float(t)) for t in np.linspace(0.3, 1.0, k)]
+        slots += [(a, float(t)) for t in np.linspace(0.25, 1.0, k) + rng.normal(0, 0.03, k)]
     for k in shoot_leaves:
         t0 = float(rng.uniform(0.3, 0.9))
         ln = float(rng.uniform(0.03, 0.08))
@@ -525,7 +546,7 @@ def _build(spec: PlantSpec, rng: np.random.Generator):
         leaves.append(_Leaf(sheet=sheet, place=pl, label=j + 1, colour_front=front, hole=hole,
                             spots=spots,
                             colour_back=back, density=float(np.exp(rng.normal(0, 0.25))),
-                            back_fraction=float(rng.uniform(0.25, 0.5)),
+                            back_fraction=float(rng.uniform(0.1, 0.5)),
                             vein_phase=float(rng.uniform(0, 1)),
                             n_secondary=int(rng.integers(7, 13)), pet_radius=pet_r))
     return axes, leaves, habit
@@ -706,7 +727,8 @@ def _smooth_noise(p: np.ndarray, rng, n_waves=6, scale=1.0) -> np.ndarray:
     return (np.sin(p @ k.T + ph).sum(1)) / np.sqrt(n_waves / 2)
 
 
-def _sample_leaf(leaf: _Leaf, n: int, rng, glossy: float, variegation: float = 0.0):
+def _sample_leaf(leaf: _Leaf, n: int, rng, glossy: float, variegation: float = 0.0,
+                 noise: float = 0.0006, fuzz_fraction: float = 0.02):
     """Gaussians on one blade, canonical frame: positions, scales (in-plane, in-plane, normal),
     rotation matrices (N, 3, 3) [columns = axes], RGB, opacities, SH-rest noise level."""
     sh = leaf.sheet
@@ -748,10 +770,16 @@ def _sample_leaf(leaf: _Leaf, n: int, rng, glossy: float, variegation: float = 0
     tx /= np.maximum(np.linalg.norm(tx, axis=1, keepdims=True), 1e-12)
     # front / back side, thickness, jitter
     back = rng.uniform(size=n) < leaf.back_fraction
+    # off-surface noise as in real reconstructions: half the blade thickness to either side,
+    # a per-leaf noise level (some leaves are reconstructed worse), a heavy tail, and "fuzz":
+    # a few Gaussians floating a few mm above the front (the usual 3DGS haze over glossy sheets)
     thick = 0.0004 * float(np.exp(rng.normal(0, 0.2)))
-    off = np.where(back, -0.5, 0.5) * thick + rng.normal(0, 0.00025, n)
-    heavy = rng.uniform(size=n) < 0.03
-    off += heavy * rng.normal(0, 0.0015, n)
+    sigma = float(np.clip(noise * np.exp(rng.normal(0, 0.45)), 0.2 * noise, 3 * noise))
+    off = np.where(back, -0.5, 0.5) * thick + rng.normal(0, sigma, n)
+    heavy = rng.uniform(size=n) < 0.04
+    off += heavy * rng.normal(0, 4 * sigma, n)
+    fuzz = rng.uniform(size=n) < fuzz_fraction
+    off += fuzz * np.abs(rng.normal(0, 0.004, n)) * np.where(back, -1, 1)
     pos = pos + off[:, None] * nrm
     # orientation: in-plane angle, parallel-veined leaves align with the midrib
     parallel = sh.outline.venation == "parallel"
@@ -771,6 +799,7 @@ def _sample_leaf(leaf: _Leaf, n: int, rng, glossy: float, variegation: float = 0
     s_1 = np.minimum(s_1, np.maximum(0.6 * d_edge, 0.2 * spacing))
     s_2 = s_1 * rng.uniform(0.3, 1.0, n) * (0.6 if parallel else 1.0)
     s_3 = s_1 * rng.uniform(0.02, 0.1, n)
+    s_3 = np.where(fuzz, np.minimum(s_1 * rng.uniform(0.2, 0.6, n), 0.9 * s_2), s_3)
     scales = np.stack([s_1, s_2, s_3], 1)
     # colour
     veins = vein_field(sh.outline, xy, leaf.vein_phase, leaf.n_secondary)
@@ -794,6 +823,7 @@ def _sample_leaf(leaf: _Leaf, n: int, rng, glossy: float, variegation: float = 0
     col = np.where(back[:, None], bk, front)
     col = np.clip(col + rng.normal(0, 0.015, (n, 3)), 0.003, 0.997)
     opa = np.where(rng.uniform(size=n) < 0.85, rng.uniform(0.8, 0.999, n), rng.uniform(0.03, 0.7, n))
+    opa = np.where(fuzz, rng.uniform(0.02, 0.3, n), opa)
     rest_sd = 0.01 + 0.05 * glossy * (~back)
     return pos, scales, R, col, opa, rest_sd
 
@@ -866,10 +896,13 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
 
     Deterministic: the same (spec, seed) gives bit-identical arrays.
     """
-    rng = np.random.default_rng([int(seed), 0x1EAF])
-    axes, leaves, habit = _build(spec, rng)
-    pairs = _place_pairs(leaves, axes, spec, rng)
-    _avoid_collisions(leaves, axes, pairs, rng)
+    # independent streams: structure, overlap/collision posing, Gaussian sampling, global frame
+    # (so that changing how Gaussians are sampled never changes the plant's geometry)
+    ss = np.random.SeedSequence([int(seed), 0x1EAF])
+    rng_build, rng_pose, rng, rng_frame = (np.random.default_rng(c) for c in ss.spawn(4))
+    axes, leaves, habit = _build(spec, rng_build)
+    pairs = _place_pairs(leaves, axes, spec, rng_pose)
+    _avoid_collisions(leaves, axes, pairs, rng_pose)
 
     # petioles: cubic Bezier from the node (on the stem surface) to the blade base,
     # leaving along (az, el_pet) and arriving along the blade's midrib direction
@@ -929,7 +962,8 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
         parts_op.append(op); parts_rest.append(np.full(len(pos), 0.01)); parts_lab.append(np.zeros(len(pos), np.int32))
         parts_pet.append(np.full(len(pos), getattr(a, "leaf", 0), np.int32))
     for lf, c in zip(leaves, cnt_l):
-        pos, sc, R, col, op, rest = _sample_leaf(lf, int(c), rng, spec.glossy, spec.variegation)
+        pos, sc, R, col, op, rest = _sample_leaf(lf, int(c), rng, spec.glossy, spec.variegation,
+                                                   spec.surface_noise, spec.fuzz)
         parts_pos.append(pos); parts_sc.append(sc); parts_R.append(R); parts_col.append(col)
         parts_op.append(op); parts_rest.append(rest); parts_lab.append(np.full(len(pos), lf.label, np.int32))
         parts_pet.append(np.zeros(len(pos), np.int32))
@@ -973,9 +1007,9 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
 
     # global similarity: canonical -> input (an SfM frame)
     if spec.global_frame:
-        Rg = _random_rotation(rng)
-        sg = float(np.exp(rng.uniform(np.log(0.3), np.log(4.0))))
-        tg = rng.normal(0, 1.5, 3)
+        Rg = _random_rotation(rng_frame)
+        sg = float(np.exp(rng_frame.uniform(np.log(0.3), np.log(4.0))))
+        tg = rng_frame.normal(0, 1.5, 3)
     else:
         Rg, sg, tg = np.eye(3), 1.0, np.zeros(3)
     M = np.eye(4)
@@ -1120,6 +1154,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--name", help="file stem (default: preset or kind + seed)")
     p.add_argument("--suite", action="store_true", help="write every benchmark_suite() plant")
     p.add_argument("--committed", action="store_true", help="regenerate the committed samples/plants")
+    p.add_argument("--list", action="store_true", help="list presets, outline shapes and the benchmark suite")
     p.add_argument("-q", "--quiet", action="store_true")
     return p
 
@@ -1128,6 +1163,14 @@ def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="%(message)s")
     jobs: list[tuple[str, PlantSpec, int]] = []
+    if args.list:
+        print("presets:", ", ".join(sorted(PRESETS)))
+        print("shapes: ", ", ".join(sorted(SHAPES)))
+        print("benchmark suite (name, kind, leaves, overlap, seed):")
+        for name, spec, seed in benchmark_suite():
+            print(f"  {name:20s} {spec.kind:9s} {spec.leaves:3d}  {spec.overlap:10s} seed {seed}"
+                  + ("  [hard]" if spec.hard else ""))
+        return 0
     if args.suite:
         jobs = benchmark_suite(args.gaussians or 100_000)
     elif args.committed:
