@@ -19,8 +19,13 @@ def assert_clouds_identical(a, b):
 
 @pytest.mark.parametrize("degree", [0, 1, 2, 3])
 @pytest.mark.parametrize("ascii", [False, True])
-def test_round_trip_bit_exact(tmp_path, degree, ascii):
-    cloud = small_cloud(150, degree, seed=degree, extra=True)
+@pytest.mark.parametrize("extra", [False, True], ids=["all-float", "mixed-types"])
+def test_round_trip_bit_exact(tmp_path, degree, ascii, extra):
+    """all-float files take the column-gather path of the reader, mixed types the per-field one."""
+    cloud = small_cloud(150, degree, seed=degree, extra=extra)
+    if not extra:
+        cloud.extra = {"nx": np.zeros(150, np.float32), "ny": np.zeros(150, np.float32),
+                       "nz": np.zeros(150, np.float32)}
     p1, p2 = tmp_path / "a.ply", tmp_path / "b.ply"
     write_ply(cloud, p1, ascii=ascii)
     back = read_ply(p1)
@@ -30,12 +35,27 @@ def test_round_trip_bit_exact(tmp_path, degree, ascii):
     assert p1.read_bytes() == p2.read_bytes()  # file -> cloud -> file is byte-identical
 
 
-def test_big_endian_reads_same_values(tmp_path):
-    cloud = small_cloud(100, 2, extra=True)
+@pytest.mark.parametrize("extra", [False, True])
+def test_big_endian_reads_same_values(tmp_path, extra):
+    cloud = small_cloud(100, 2, extra=extra)
     write_ply(cloud, tmp_path / "le.ply")
     write_ply_order(cloud, tmp_path / "be.ply", ">")
     a, b = read_ply(tmp_path / "le.ply"), read_ply(tmp_path / "be.ply")
     assert_clouds_identical(a, b)
+
+
+def test_chunked_read_spans_chunks(tmp_path, monkeypatch):
+    """A file larger than one read chunk is stitched together exactly."""
+    import leaffit_usd.splats.ply as ply
+
+    monkeypatch.setattr(ply, "_CHUNK", 7)
+    cloud = small_cloud(50, 3)
+    write_ply(cloud, tmp_path / "c.ply")
+    whole = read_ply(tmp_path / "c.ply")
+    assert whole.means.tobytes() == cloud.means.tobytes()
+    assert whole.sh.tobytes() == cloud.sh.tobytes()
+    write_ply(whole, tmp_path / "d.ply")
+    assert (tmp_path / "c.ply").read_bytes() == (tmp_path / "d.ply").read_bytes()
 
 
 def test_channel_major_f_rest_layout(tmp_path):
