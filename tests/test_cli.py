@@ -199,3 +199,13 @@ def test_help_and_version():
     r = subprocess.run([sys.executable, "-m", "leaffit_usd", "inspect", "--help"],
                        capture_output=True, text=True, cwd=REPO, timeout=120)
     assert r.returncode == 0 and "--json" in r.stdout and "--up" in r.stdout
+
+
+@pytest.mark.parametrize("n", [1, 3])
+def test_inspect_tiny_clouds(capsys, tmp_path, n):
+    p = tmp_path / "tiny.ply"
+    write_ply(small_cloud(n), p)
+    code, out, err = run_cli(capsys, "inspect", p, "--json")
+    assert code == 0, err
+    s = json.loads(out)
+    assert s["gaussians"] == n and s["up"]["source"].startswith("default")

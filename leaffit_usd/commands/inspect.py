@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from leaffit_usd.errors import ParameterError
 from leaffit_usd.splats.frame import LOW_UP_CONFIDENCE
 
 NAME = "inspect"
@@ -24,6 +25,7 @@ Examples:
   leaffit-usd inspect plant.ply --up +y
 """
 ORDER = 90
+_MIN_ESTIMATE = 10  # Gaussians needed to estimate an up axis
 
 
 def add_arguments(parser) -> None:
@@ -62,15 +64,17 @@ def summarize(path: str | os.PathLike, prim: str | None = None, up: str | None =
         cloud = load_cloud(path, prim=prim)
     means = cloud.means
     lo, hi = means.min(0).astype(np.float64), means.max(0).astype(np.float64)
-    if up is None or str(up).strip().lower() == "auto":
+    if up is not None and str(up).strip().lower() != "auto":
+        up_vec, source, conf = parse_up(up), "given", None
+    elif len(cloud) < _MIN_ESTIMATE:
+        up_vec, source, conf = np.array([0.0, 0.0, 1.0]), "default +z (too few Gaussians to estimate)", 0.0
+    else:
         est = estimate_up_with_confidence(means, gaussian_normals(cloud))
         up_vec, source, conf = est.up, "estimated", float(est.confidence)
-    else:
-        up_vec, source, conf = parse_up(up), "given", None
-    if len(cloud) >= 2:
+    try:
         choice = make_frame(cloud, up=up_vec, root="auto")
         root_i, height = choice.root_index, float(choice.frame.height)
-    else:
+    except ParameterError:  # no extent along up (a single Gaussian, a flat sheet across up)
         root_i, height = 0, 0.0
     scales = cloud.scales.astype(np.float64)
     return {

@@ -373,8 +373,11 @@ def estimate_up_with_confidence(points: np.ndarray, normals: np.ndarray | None =
     is the best score more than 45 degrees away from the chosen axis (0 = ambiguous).
     """
     p = np.asarray(points)
-    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 10:
-        raise ParameterError("points", "(N, 3) with N >= 10", getattr(p, "shape", None))
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ParameterError("points", "an (N, 3) array", getattr(p, "shape", None))
+    if len(p) < 10:
+        raise ParameterError("--up auto", "at least 10 Gaussians to estimate the up axis "
+                             "(give it with --up)", f"{len(p)} Gaussians")
     if normals is not None:
         normals = np.asarray(normals)
         if normals.shape != p.shape:
