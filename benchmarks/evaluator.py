@@ -7,6 +7,8 @@ a synthetic plant of that size, median of ``--repeats`` runs after one warm-up:
   weights            mls_weights for the template, once per asset          (V x K)
   deform             MLS of all leaves: one (V, K) @ (K, 3 L) product       (per frame)
   deform+transform   + PointInstancer transforms (asset frame)              (per frame)  <- target
+                     (default order: transforms applied to the K targets before deform; the
+                     literal order, transforms on the V vertices after it, is timed too)
   evaluate()         the public call: weights + deform + transform to the input frame + faces
   GLSL (llvmpipe)    the shader on Mesa's CPU rasteriser, transform feedback (with --gl)
 
@@ -76,6 +78,8 @@ def main(argv=None) -> int:
         "deform+transform float64": timeit(lambda: ev.evaluate(asset.targets, M), args.repeats),
         "deform+transform float32 out": timeit(
             lambda: ev.evaluate(asset.targets, M, out_dtype=np.float32), args.repeats),
+        "deform+transform, order='points' (literal)": timeit(
+            lambda: ev.evaluate(asset.targets, M, order="points"), args.repeats),
         "evaluate() input frame float64": timeit(lambda: evaluate(asset), args.repeats),
         "evaluate() input frame float32": timeit(lambda: evaluate(asset, dtype=np.float32),
                                                  args.repeats),

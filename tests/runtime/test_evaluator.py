@@ -221,3 +221,16 @@ def test_separated_sheets():
     inp = evaluate(a, separate_sheets=True).vertices
     m = a.asset_to_input
     assert np.allclose(inp, sep.vertices @ m[:3, :3].T + m[:3, 3], atol=1e-9)
+
+
+def test_transform_order_controls_equals_points(asset):
+    """Placing the targets before deform == placing the deformed vertices (affine MLS)."""
+    ev = LeafEvaluator.from_asset(asset)
+    M = instance_matrices(asset.positions, asset.orientations, asset.scales)
+    M = np.einsum("ij,ljk->lik", asset.asset_to_input, M)
+    a = ev.evaluate(asset.targets, M, order="controls")
+    b = ev.evaluate(asset.targets, M, order="points")
+    assert a.flags["C_CONTIGUOUS"] and b.flags["C_CONTIGUOUS"]
+    assert np.abs(a - b).max() <= 1e-12 * np.abs(b).max()
+    with pytest.raises(ParameterError):
+        ev.evaluate(asset.targets, M, order="vertices")
