@@ -32,7 +32,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("file", metavar="FILE", help="3DGS capture: .ply, .usd, .usda, .usdc or .usdz")
     parser.add_argument("--json", action="store_true", help="print a JSON object instead of a table")
     parser.add_argument("--up", default="auto", metavar="AXIS",
-                        help="up axis of the capture: auto (estimated, default), +x/-y/z..., or X,Y,Z")
+                        help="up axis of the capture: auto (estimated, default), +x, z, X,Y,Z ...; "
+                             "write negative ones as --up=-y")
     parser.add_argument("--prim", default=None, metavar="PATH",
                         help="USD only: path of the splat prim when the stage holds several")
 
@@ -87,7 +88,7 @@ def summarize(path: str | os.PathLike, prim: str | None = None, up: str | None =
         "sh_degree": cloud.sh_degree,
         "extra_properties": {k: str(v.dtype) for k, v in cloud.extra.items()},
         "bounds": {"min": lo.tolist(), "max": hi.tolist(), "size": (hi - lo).tolist()},
-        "up": {"vector": [float(x) for x in up_vec], "source": source, "confidence": conf},
+        "up": {"vector": [float(x) + 0.0 for x in up_vec], "source": source, "confidence": conf},
         "root": {"index": int(cloud.file_index[root_i]), "position": means[root_i].astype(float).tolist()},
         "height": height,
         "memory_bytes": cloud.nbytes,
@@ -106,7 +107,7 @@ def _fmt_bytes(n: int) -> str:
 
 
 def _vec(v) -> str:
-    return "(" + ", ".join(f"{x:.4g}" for x in v) + ")"
+    return "(" + ", ".join(f"{x + 0.0:.4g}" for x in v) + ")"  # + 0.0: no "-0"
 
 
 def _st(s: dict) -> str:

@@ -10,6 +10,7 @@ any result back to the input frame exactly (up to float rounding).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -121,8 +122,6 @@ class Frame:
 # =============================================================================================
 # Helpers that build a Frame from a cloud: up-axis estimation, root choice, cloud transforms.
 # =============================================================================================
-from typing import NamedTuple  # noqa: E402
-
 _UP_SAMPLE = 40_000        # points used by the up estimator (deterministic subsample)
 _ROOT_SAMPLE = 60_000      # points used for the connected-component analysis of --root auto
 _ROOT_GRAPH_K = 10         # neighbours per sample in that analysis
