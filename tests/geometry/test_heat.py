@@ -126,3 +126,30 @@ def test_voxel_subsample_and_interpolation():
     assert np.allclose(W.sum(1), 1)
     assert np.abs(W @ f - (p[:, 0] * 2 + 1)).max() < 0.08
     assert np.allclose((W @ f)[idx], f)
+
+
+def test_bridge_joins_a_small_gap_only():
+    a = _plane(1500)
+    near = _plane(1500, seed=6) + [1.15, 0, 0]   # 0.15 gap (~6 spacings)
+    far = _plane(1500, seed=7) + [3.0, 0, 0]     # 1.0 gap
+    pts = np.r_[a, near, far]
+    s = GeodesicSolver(pts, bridge_gap=0.25)
+    assert len(s.bridges) == 1 and s.n_components == 2
+    d = s.distance(0)
+    assert np.isfinite(d[:3000]).all() and np.isinf(d[3000:]).all()
+    # reached through the one bridge: beyond it, distance grows with the distance from it
+    e = s.domain[s.bridges[0]]
+    cross = d[e].max()
+    assert d[1500:3000].min() >= cross - 1e-6
+    assert np.abs(d[1500:3000] - cross - np.linalg.norm(near - pts[e[np.argmax(d[e])]], axis=1)).mean() < 0.05
+    plain = GeodesicSolver(pts)
+    assert plain.n_components == 3 and len(plain.bridges) == 0
+
+
+def test_adjacency_graph():
+    s = GeodesicSolver(_plane(500))
+    a = s.adjacency()
+    assert (a != a.T).nnz == 0 and a.shape == (500, 500)
+    w = s.adjacency(lengths=True)
+    r = np.repeat(np.arange(500), np.diff(w.indptr))
+    assert np.allclose(w.data, np.linalg.norm(s._x[r] - s._x[w.indices], axis=1))
