@@ -31,7 +31,22 @@ def open_stage(path, load_payloads: bool = False):
         raise InputFileError(p, "not a readable USD file" + (f" ({reason[-1]})" if reason else "")) from None
     if stage is None:
         raise InputFileError(p, "not a readable USD file")
+    select_representation(stage, "deformer")
     return stage
+
+
+def select_representation(stage, name: str = "deformer") -> None:
+    """Select variant ``name`` of leafRepresentation in the stage's session layer (never saved):
+    the 'baked' variant deactivates the PointInstancer, so readers look at 'deformer'."""
+    from pxr import Usd
+
+    root = stage.GetDefaultPrim()
+    if not root:
+        return
+    vset = root.GetVariantSets().GetVariantSet("leafRepresentation")
+    if vset and vset.IsValid() and name in vset.GetVariantNames() and vset.GetVariantSelection() != name:
+        with Usd.EditContext(stage, stage.GetSessionLayer()):
+            vset.SetVariantSelection(name)
 
 
 def find_instancer(stage):

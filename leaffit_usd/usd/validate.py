@@ -82,6 +82,8 @@ def usd_validation(stage) -> list[Finding]:
     reg = UsdValidation.ValidationRegistry()
     ctx = UsdValidation.ValidationContext(reg.GetOrLoadAllValidators())
     out = _usd_errors(ctx.Validate(stage))
+    from leaffit_usd.usd.reader import select_representation
+
     root = stage.GetDefaultPrim()
     vset = root.GetVariantSets().GetVariantSet("leafRepresentation") if root else None
     if vset and vset.IsValid():
@@ -89,11 +91,11 @@ def usd_validation(stage) -> list[Finding]:
         try:
             for name in vset.GetVariantNames():
                 if name != original:
-                    vset.SetVariantSelection(name)  # session-less edit of the opened (unsaved) stage
+                    select_representation(stage, name)  # session layer: the file is not touched
                     out += [Finding(f.severity, f.rule, f.path, f"{f.message} [variant {name}]")
                             for f in _usd_errors(ctx.Validate(stage))]
         finally:
-            vset.SetVariantSelection(original)
+            select_representation(stage, original)
     return out
 
 
@@ -285,15 +287,21 @@ def layout_findings(stage) -> list[Finding]:
     # the baked representation, if offered
     vset = root.GetVariantSets().GetVariantSet("leafRepresentation")
     if vset and vset.IsValid() and "baked" in vset.GetVariantNames():
+        from leaffit_usd.usd.reader import select_representation
+
         original = vset.GetVariantSelection()
         try:
-            vset.SetVariantSelection("baked")
+            select_representation(stage, "baked")
             baked = [p for p in Usd.PrimRange(root) if p.IsA(UsdGeom.Mesh) and not p.IsAbstract()
                      and "BakedLeaves" in str(p.GetPath()) and p.GetParent().GetName() == "BakedLeaves"]
             if len(baked) != L:
                 add("error", "BakedVariant", root.GetPath(), f"variant 'baked' has {len(baked)} leaf meshes, expected {L}")
+            inst_after = find_instancer(stage)
+            if inst_after is not None and inst_after.IsActive():
+                add("warning", "BakedVariant", root.GetPath(), "variant 'baked' leaves the "
+                    "PointInstancer active: DCCs would show every leaf twice")
         finally:
-            vset.SetVariantSelection(original)
+            select_representation(stage, original)
     return out
 
 

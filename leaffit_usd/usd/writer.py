@@ -466,7 +466,9 @@ def _write_main_layer(out: Path, a: PlantAsset, name: str, front_tex: str, back_
             baked = UsdGeom.Xform.Define(stage, f"{root}/BakedLeaves")
             baked.GetPrim().GetPayloads().AddPayload(baked_rel)
             baked.GetPrim().SetCustomDataByKey("leaffit:role", "baked")
-            UsdGeom.Imageable(inst).CreateVisibilityAttr(UsdGeom.Tokens.invisible)
+            # deactivate (not hide) the instancer: Blender 4.2 crashes importing an invisible
+            # PointInstancer next to other meshes; readers force the 'deformer' variant
+            inst.GetPrim().SetActive(False)
             topo = stage.OverridePrim(f"{root}/BakedLeaves/LeafTopology")
             for side, mat in (("front", "LeafFront"), ("back", "LeafBack")):
                 sub = stage.OverridePrim(f"{topo.GetPath()}/{side}")

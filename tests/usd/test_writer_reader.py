@@ -169,3 +169,22 @@ def test_deterministic_bytes(tmp_path, asset, textures):
     W.write_stage(tmp_path / "a" / "p.usdz", asset, textures)
     W.write_stage(tmp_path / "b" / "p.usdz", asset, textures)
     assert (tmp_path / "a" / "p.usdz").read_bytes() == (tmp_path / "b" / "p.usdz").read_bytes()
+
+
+def test_reader_and_validator_work_when_baked_is_the_saved_selection(tmp_path, asset, textures):
+    """'baked' deactivates the PointInstancer (Blender 4.2 crashes on an invisible one); readers
+    select 'deformer' in their session layer, so a file saved with 'baked' selected still reads."""
+    from pxr import Usd
+
+    out = tmp_path / "p.usda"
+    W.write_stage(out, asset, textures)
+    stage = Usd.Stage.Open(str(out))
+    root = stage.GetDefaultPrim()
+    root.GetVariantSets().GetVariantSet("leafRepresentation").SetVariantSelection("baked")
+    assert not stage.GetPrimAtPath(f"{root.GetPath()}/Leaves").IsActive()
+    stage.GetRootLayer().Save()
+    b = read_stage(out)
+    assert b.n_leaves == asset.n_leaves
+    rep = validate_file(out)
+    assert rep.count("error") == 0, [str(f) for f in rep.findings]
+    assert 'string leafRepresentation = "baked"' in out.read_text()   # the file was not touched

@@ -2,18 +2,20 @@
 
 Run with the bpy venv (``make dcc-check``), NOT under pytest:
 
-    build/dcc-venv/bin/python tests/usd/dcc/blender_check.py plant.usda EXPECTED_LEAVES [EXPECTED.json]
+    build/dcc-venv/bin/python tests/usd/dcc/blender_check.py plant.usda LEAVES [EXPECTED.json [BAKED.usda]]
 
 Checks: the PointInstancer arrives as EXPECTED_LEAVES instances of the template leaf; the
 template mesh has two material slots (front, back) whose node trees read an image texture that
-loaded (non-zero size); the stem mesh exists. Prints one line per check; exit 1 on failure.
+loaded (non-zero size); the stem mesh exists; instance transforms equal the stage's; and, with
+the 'baked' variant selected, one mesh per leaf with both materials and no instances on top.
+Prints one line per check; exit 1 on failure.
 """
 import sys
 
 import bpy
 
 
-def main(path: str, expected: int, expect_json: str | None = None) -> int:
+def main(path: str, expected: int, expect_json: str | None = None, baked_path: str | None = None) -> int:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     res = bpy.ops.wm.usd_import(filepath=path)
     if "FINISHED" not in res:
@@ -61,9 +63,21 @@ def main(path: str, expected: int, expect_json: str | None = None) -> int:
                 errs.append(np.abs(got[k] - w).max() / max(np.abs(w[:3, :3]).max(), 1e-12))
             # quath orientations: ~1e-3 relative
             check(max(errs) < 5e-3, f"instance transforms match the stage (max rel. error {max(errs):.1e})")
+    if baked_path:
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        res = bpy.ops.wm.usd_import(filepath=baked_path)
+        check("FINISHED" in res, f"import with leafRepresentation = baked ({res})")
+        leaves = [o for o in bpy.data.objects if o.type == "MESH" and o.name.startswith("leaf_")]
+        check(len(leaves) == expected, f"baked variant: {len(leaves)} leaf meshes, expected {expected}")
+        slots = {len([s for s in o.material_slots if s.material]) for o in leaves}
+        check(slots == {2}, f"baked leaves have front and back materials (slot counts {slots})")
+        dg = bpy.context.evaluated_depsgraph_get()
+        n = sum(1 for inst in dg.object_instances if inst.is_instance)
+        check(n == 0, f"baked variant: no instanced leaves on top ({n})")
     return 0 if ok else 1
 
 
 if __name__ == "__main__":
     argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:]
-    sys.exit(main(argv[0], int(argv[1]), argv[2] if len(argv) > 2 else None))
+    sys.exit(main(argv[0], int(argv[1]), argv[2] if len(argv) > 2 else None,
+                  argv[3] if len(argv) > 3 else None))

@@ -1,5 +1,6 @@
 """Stage for ``make dcc-check``: prints 'PATH LEAVES EXPECTED.json' for blender_check.py
-(the JSON holds each instance's 4x4 transform in the stage's frame).
+(the JSON holds each instance's 4x4 transform in the stage's frame), then the path of a copy
+with the 'baked' variant selected (written beside it) if the stage offers one.
 
     python tests/usd/dcc/make_stage.py [PLANT.usda]
 
@@ -42,7 +43,16 @@ def main() -> int:
     up = a.metadata.get("up_axis", "Y")
     expect = path.with_suffix(".instances.json")
     expect.write_text(json.dumps({"up_axis": up, "matrices": m.tolist()}))
-    print(path.resolve(), a.n_leaves, expect.resolve())
+    # the same stage with leafRepresentation = baked selected (what an artist picks for exact shapes)
+    from pxr import Usd
+    stage = Usd.Stage.Open(str(path))
+    vset = stage.GetDefaultPrim().GetVariantSets().GetVariantSet("leafRepresentation")
+    baked = ""
+    if vset and "baked" in vset.GetVariantNames():
+        vset.SetVariantSelection("baked")
+        baked = path.with_name(path.stem + ".baked_selected.usda")
+        stage.GetRootLayer().Export(str(baked))
+    print(path.resolve(), a.n_leaves, expect.resolve(), baked)
     return 0
 
 
