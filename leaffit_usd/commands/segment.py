@@ -79,8 +79,10 @@ def add_arguments(p) -> None:
     g.add_argument("--rho", type=float, help="rho, early protection ratio (0.25)")
     g.add_argument("--no-orientation", action="store_true",
                    help="plain point-proximity geodesics (ignore the Gaussians' orientations)")
-    g.add_argument("--paper-apex-test", action="store_true",
-                   help="the paper's apex test exactly (all N_k Euclidean neighbours vote)")
+    g.add_argument("--paper-rules", action="store_true",
+                   help="the paper's rules exactly where ours differ: all N_k Euclidean neighbours "
+                        "vote in the apex test, no blade-first / base refinement / LCA-on-blade "
+                        "rules, blade-less instances kept (see leaffit_usd.segment.auto)")
     g.add_argument("--seed", type=_pos_int, help="seed of the random geodesic subset (0)")
 
 
@@ -94,8 +96,9 @@ def params_from_args(args):
             kw[name] = v
     if getattr(args, "no_orientation", False):
         kw["orientation_aware"] = False
-    if getattr(args, "paper_apex_test", False):
-        kw["apex_surface_neighbors"] = False
+    if getattr(args, "paper_rules", False):
+        kw.update(apex_surface_neighbors=False, blade_first=False, base_refine=False,
+                  lca_on_blade=False, require_blade=False)
     return SegmentParams(**kw).validate()
 
 

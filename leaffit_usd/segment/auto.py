@@ -205,8 +205,9 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
 
     t1 = time.perf_counter()
     d_root = solver.distance(root)
+    d_root[~inlier] = np.inf  # floaters are left out: not reached
     reach = np.isfinite(d_root)
-    lost = int((~reach & inlier).sum())
+    lost = int((~reach & inlier).sum())  # connected pieces apart from the root's
     if lost:
         (log.warning if lost > 0.005 * n else log.info)(
             "the cloud is disconnected: %d of %d Gaussians are not connected to the root and stay "
