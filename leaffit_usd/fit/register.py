@@ -267,8 +267,10 @@ def _prepare_leaf(label: int, means: np.ndarray, seg: Segmentation, dn: DenoiseP
     reason = ""
     if len(dpts) >= 3:
         var = pca(dpts).variances
-        if var[1] < 1e-4 * max(var[0], 1e-300):
-            reason = "collinear Gaussians (no leaf plane)"
+        # no leaf plane: collinear, or a cross-section as thick as it is wide (a stem piece,
+        # a blob): the normal is undefined. A thin but flat blade (grass) has var[2] << var[1].
+        if var[1] < 1e-8 * max(var[0], 1e-300) or var[2] > 0.5 * var[1]:
+            reason = "collinear or non-planar Gaussians (no leaf plane)"
         size = float(np.sqrt(max(var[0] + var[1], 0.0)))
     else:
         size = 0.0

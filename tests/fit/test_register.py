@@ -1,0 +1,179 @@
+"""fit_leaves: the LeafFits contract, optimisation gain, degenerate leaves, template choice."""
+import logging
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial import cKDTree
+
+from leaffit_usd.errors import ParameterError
+from leaffit_usd.fit.mls import deform_points
+from leaffit_usd.fit.register import Adam, FitParams, fit_leaves
+from leaffit_usd.fit.result import LeafFits
+from leaffit_usd.fit.synthetic import make_plant
+from leaffit_usd.segment.result import Segmentation
+from leaffit_usd.serialize import load_value, save_value
+
+FAST = dict(steps=40)          # tests: fewer Adam steps (the default 200 is the benchmark's)
+
+
+@pytest.fixture(scope="module")
+def plant():
+    return make_plant(n_leaves=5, n_gaussians=12000, seed=3)
+
+
+@pytest.fixture(scope="module")
+def fits(plant):
+    torch.set_num_threads(1)
+    return fit_leaves(plant.cloud, plant.seg, FitParams(**FAST))
+
+
+@pytest.fixture(scope="module")
+def fits_noopt(plant):
+    return fit_leaves(plant.cloud, plant.seg, FitParams(optimize=False))
+
+
+def _deformed_working(f: LeafFits, j: int, pts_local=None):
+    """The LeafFits contract: leaf_j(v) = leaf_to_working[j] @ MLS(p -> q_j)(v)."""
+    v = f.template_points if pts_local is None else pts_local
+    d = deform_points(f.template_controls, f.targets[j], v, f.sigma, f.reg)
+    m = f.leaf_to_working[j]
+    return d @ m[:3, :3].T + m[:3, 3]
+
+
+def _nn_error(plant, f, j):
+    pts = plant.cloud.means[plant.seg.leaf_indices(j + 1)]
+    d, _ = cKDTree(pts).query(_deformed_working(f, j))
+    return float(np.median(d))
+
+
+def test_fits_shapes_and_contract(plant, fits):
+    L, K = plant.seg.n_leaves, 32
+    assert fits.targets.shape == (L, K, 3) and fits.targets.dtype == np.float32
+    assert fits.template_controls.shape == (K, 3)
+    assert fits.leaf_to_working.shape == (L, 4, 4)
+    assert fits.leaf_labels.tolist() == list(range(1, L + 1))
+    assert np.isfinite(fits.targets).all() and not fits.fallback.any()
+    assert 1 <= fits.template_label <= L
+    assert (plant.seg.labels[fits.template_gaussians] == fits.template_label).all()
+    # leaf_to_working is a similarity: R^T R = s^2 I with s = size relative to the template
+    for j in range(L):
+        a = fits.leaf_to_working[j, :3, :3]
+        s2 = (a.T @ a)[0, 0]
+        np.testing.assert_allclose(a.T @ a, s2 * np.eye(3), atol=1e-9)
+        assert np.linalg.det(a) > 0
+        # origin at the petiole base, +X towards the apex
+        base = plant.cloud.means[plant.seg.leaf_base[j]]
+        tip = plant.cloud.means[plant.seg.leaf_tip[j]]
+        np.testing.assert_allclose(fits.leaf_to_working[j, :3, 3], base, atol=1e-6)
+        assert (tip - base) @ a[:, 0] > 0
+        assert a[2, 2] > -1e-6 or abs(a[2, 2]) < 0.1 * np.sqrt(s2)   # normal to the upper side
+    t = fits.template_label - 1
+    np.testing.assert_allclose(fits.targets[t], fits.template_controls)
+    assert np.linalg.det(fits.leaf_to_working[t, :3, :3]) == pytest.approx(1.0)
+
+
+def test_deformed_template_lies_on_each_leaf(plant, fits):
+    """Every leaf, rebuilt from the template through LeafFits, sits on that leaf's Gaussians."""
+    for j in range(plant.seg.n_leaves):
+        pts = plant.cloud.means[plant.seg.leaf_indices(j + 1)]
+        size = np.ptp(pts, axis=0).max()
+        err = _nn_error(plant, fits, j)
+        assert err < 0.03 * size, (j, err, size)
+        assert fits.errors[j] < 0.05 * size
+
+
+def test_optimisation_beats_initial_correspondence(plant, fits, fits_noopt):
+    t = fits.template_label - 1
+    others = [j for j in range(plant.seg.n_leaves) if j != t]
+    assert fits.errors[others].mean() < 0.85 * fits_noopt.errors[others].mean()
+    # same frames and template either way
+    np.testing.assert_allclose(fits.leaf_to_working, fits_noopt.leaf_to_working)
+
+
+def test_deterministic_and_serialisable(plant, fits, tmp_path):
+    again = fit_leaves(plant.cloud, plant.seg, FitParams(**FAST))
+    np.testing.assert_array_equal(again.targets, fits.targets)
+    save_value(fits, tmp_path / "fits.npz")
+    back = load_value(LeafFits, tmp_path / "fits.npz")
+    np.testing.assert_array_equal(back.targets, fits.targets)
+    assert back.params["K"] == 32 and back.template_label == fits.template_label
+
+
+def test_explicit_template_and_bad_parameters(plant):
+    f = fit_leaves(plant.cloud, plant.seg, FitParams(template="2", optimize=False))
+    assert f.template_label == 2
+    for bad in [dict(template=0), dict(template="leaf"), dict(K=0), dict(lr=-1.0),
+                dict(steps=1.5), dict(lam=float("nan")), dict(max_scale_ratio=0.5)]:
+        with pytest.raises(ParameterError):
+            fit_leaves(plant.cloud, plant.seg, FitParams(**{"optimize": False, **bad}))
+    with pytest.raises(ParameterError):
+        fit_leaves(plant.cloud, plant.seg, FitParams(template=99, optimize=False))
+    seg = Segmentation(labels=plant.seg.labels[:-1], root_index=0)
+    with pytest.raises(ParameterError):
+        fit_leaves(plant.cloud, seg)
+
+
+def test_degenerate_leaves_fall_back_rigid(plant, caplog):
+    """Fewer Gaussians than K, a collinear 'leaf' (stem points), a leaf 6x larger: warning,
+    rigid fit (targets = template controls), finite everywhere; the others still fit."""
+    cloud = plant.cloud.subset(np.arange(len(plant.cloud)))
+    labels = plant.seg.labels.copy()
+    L = plant.seg.n_leaves
+    means = cloud.means.astype(np.float64)
+    stem = np.flatnonzero(labels == 0)
+    labels[stem[:200]] = L + 1                                  # collinear
+    few = plant.seg.leaf_indices(1)[:10]
+    labels[few] = L + 2                                         # 10 < K Gaussians
+    big = plant.seg.leaf_indices(2)
+    base = means[plant.seg.leaf_base[1]]
+    means[big] = base + (means[big] - base) * 6.0               # 6x the size
+    cloud.means = means.astype(np.float32)
+    seg = Segmentation(labels=labels, root_index=0,
+                       leaf_tip=np.r_[plant.seg.leaf_tip, stem[199], few[-1]],
+                       leaf_base=np.r_[plant.seg.leaf_base, stem[0], few[0]])
+    with caplog.at_level(logging.WARNING, logger="leaffit_usd"):
+        f = fit_leaves(cloud, seg, FitParams(**FAST))
+    assert np.isfinite(f.targets).all() and np.isfinite(f.leaf_to_working).all()
+    assert np.isfinite(f.errors).all()
+    for lab in (2, L + 1, L + 2):
+        assert f.fallback[lab - 1], lab
+        np.testing.assert_allclose(f.targets[lab - 1], f.template_controls)
+        assert f"leaf {lab} is degenerate" in caplog.text
+    assert not f.fallback[[0, 2, 3, 4]].any()
+    assert f.template_label not in (2, L + 1, L + 2)
+
+
+def test_auto_template_avoids_incomplete_leaf():
+    """The median-sized leaf with half its blade missing is not the auto template."""
+    p = make_plant(n_leaves=5, n_gaussians=12000, seed=3, size_spread=0.0)
+    base = fit_leaves(p.cloud, p.seg, FitParams(optimize=False))
+    t = base.template_label
+    # cut away one side of the chosen template (local y > 0)
+    idx = p.seg.leaf_indices(t)
+    m = base.leaf_to_working[t - 1]
+    local = (p.cloud.means[idx] - m[:3, 3]) @ m[:3, :3]
+    labels = p.seg.labels.copy()
+    labels[idx[local[:, 1] > 0.0]] = 0
+    seg = Segmentation(labels=labels, root_index=0, leaf_tip=p.seg.leaf_tip, leaf_base=p.seg.leaf_base)
+    f = fit_leaves(p.cloud, seg, FitParams(optimize=False))
+    assert f.template_label != t
+
+
+def test_no_leaves_gives_empty_fits(plant):
+    seg = Segmentation(labels=np.zeros(len(plant.cloud), np.int32), root_index=0)
+    f = fit_leaves(plant.cloud, seg)
+    assert f.targets.shape == (0, 32, 3) and f.leaf_to_working.shape == (0, 4, 4)
+
+
+def test_adam_matches_torch():
+    torch.manual_seed(0)
+    a = torch.randn(5, 3, requires_grad=True)
+    b = a.detach().clone().requires_grad_(True)
+    o1, o2 = Adam(a, lr=7e-3), torch.optim.Adam([b], lr=7e-3)
+    for _ in range(30):
+        for x, o in ((a, o1), (b, o2)):
+            x.grad = None
+            ((x ** 2).sum() + x.sin().sum()).backward()
+            o.step()
+    torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
