@@ -60,6 +60,9 @@ def run_one(name, spec, seed, methods):
             nrm = working_normals(cloud, fc.frame.rotation)
             seg = segment_plant(pts, fc.root_index, SegmentParams(), normals=nrm)
             labels = seg.labels
+        elif meth == "ours_orientation":
+            labels = segment_plant(pts, fc.root_index, SegmentParams(orientation_aware=True),
+                                   normals=working_normals(cloud, fc.frame.rotation)).labels
         elif meth == "ours_paper_rules":  # every switchable deviation from the paper off
             prm = SegmentParams(apex_surface_neighbors=False, blade_first=False, base_refine=False,
                                 lca_on_blade=False, require_blade=False, orientation_aware=False)
@@ -85,7 +88,8 @@ def table(rows, methods, title):
             f = "{:9.3f}{:7.3f}" if m == "time" else "{:9.2f}{:7.2f}"
             cells.append(f.format(vals[m].mean(), vals[m].std()))
         label = {"ours": "Ours (heat geodesics)", "baseline": "Euclidean Density",
-                 "ours_paper_rules": "Ours, paper rules"}[meth]
+                 "ours_paper_rules": "Ours, paper rules",
+                 "ours_orientation": "Ours + orientation"}[meth]
         lines.append(f"{label:<22}" + "".join(cells))
     return "\n".join(lines), summary
 
@@ -94,9 +98,11 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--gaussians", type=int, default=100_000)
     ap.add_argument("--only", nargs="*", help="plant names from samples.benchmark_suite()")
-    ap.add_argument("--methods", nargs="*", default=["ours", "ours_paper_rules", "baseline"],
-                    help="ours, ours_paper_rules (the switchable deviations off: plain geodesics, "
-                         "the paper's apex test, petiole and grouping rules), baseline")
+    ap.add_argument("--methods", nargs="*",
+                    default=["ours", "ours_orientation", "ours_paper_rules", "baseline"],
+                    help="ours, ours_orientation (+ orientation-aware geodesics), ours_paper_rules "
+                         "(the switchable deviations off: the paper's apex test, petiole and "
+                         "grouping rules), baseline")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/segmentation.json"))
     args = ap.parse_args(argv)
     from samples.generate import benchmark_suite

@@ -77,8 +77,9 @@ def add_arguments(p) -> None:
     g.add_argument("--delta", type=_pos_float, help="delta, iso-geodesic band width (0.01)")
     g.add_argument("--epsilon", type=_pos_float, help="epsilon, petiole diameter threshold (0.05)")
     g.add_argument("--rho", type=float, help="rho, early protection ratio (0.25)")
-    g.add_argument("--no-orientation", action="store_true",
-                   help="plain point-proximity geodesics (ignore the Gaussians' orientations)")
+    g.add_argument("--orientation", action="store_true",
+                   help="orientation-aware geodesics: no short-cut between a Gaussian and points off its "
+                        "tangent plane (a leaf lying on another); off by default")
     g.add_argument("--paper-rules", action="store_true",
                    help="the paper's rules exactly where ours differ: all N_k Euclidean neighbours "
                         "vote in the apex test, no blade-first / base refinement / LCA-on-blade "
@@ -94,8 +95,8 @@ def params_from_args(args):
         v = getattr(args, name, None)
         if v is not None:
             kw[name] = v
-    if getattr(args, "no_orientation", False):
-        kw["orientation_aware"] = False
+    if getattr(args, "orientation", False):
+        kw["orientation_aware"] = True
     if getattr(args, "paper_rules", False):
         kw.update(apex_surface_neighbors=False, blade_first=False, base_refine=False,
                   lca_on_blade=False, require_blade=False)

@@ -31,8 +31,9 @@ def test_finds_every_leaf_accurately(plant, seg):
     assert s.tp == 6 and s.miou >= MIN_MIOU and s.pq >= MIN_MIOU
 
 
-def test_without_normals_too(plant):
-    seg = segment_plant(plant.points, plant.root_index)
+def test_orientation_aware_too(plant):
+    seg = segment_plant(plant.points, plant.root_index, SegmentParams(orientation_aware=True),
+                        normals=plant.normals)
     assert segmentation_scores(seg.labels, plant.labels).miou >= MIN_MIOU
 
 

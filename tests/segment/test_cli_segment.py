@@ -80,11 +80,11 @@ def test_root_by_point_and_params(ply, tmp_path):
     path, gt, root = ply
     out = tmp_path / "l.npz"
     rc = main(["segment", str(path), "-o", str(out), "--up", "+y", "--root", "1,2,3", "--tau", "0.4",
-               "--no-orientation", "--paper-rules", "-q"])
+               "--orientation", "--paper-rules", "-q"])
     assert rc == 0
     z = np.load(out)
     prm = json.loads(str(z["params"]))
-    assert prm["tau"] == 0.4 and not prm["orientation_aware"] and not prm["base_refine"]
+    assert prm["tau"] == 0.4 and prm["orientation_aware"] and not prm["base_refine"]
     assert segmentation_scores(z["labels"], gt).tp >= 4  # the paper's rules: leaves found
 
 
