@@ -92,7 +92,8 @@ class SegmentParams:
     t_coef : heat-method time step as a multiple of h^2 (geometry-central's 1.0)
     orientation_aware : use normals in the geodesic operator when they are given (ours; False:
         on the generated benchmark the Gaussians' smallest axes are too noisy a normal; dropping
-        elements by them made 8 of 14 plants worse, see benchmarks/segmentation.py)
+        elements by them lowered mIoU on 10 of the 14 benchmark plants, raised it on 4; see
+        benchmarks/results/segmentation.json)
     apex_surface_neighbors : of the N_k Euclidean neighbours, the apex test uses only those also
         within reach along the surface (ours; True; False = the paper's test exactly)
     blade_first : the petiole base can only be found after the march has crossed the blade
