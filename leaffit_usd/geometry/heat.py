@@ -276,6 +276,8 @@ class GeodesicSolver:
         self.n_components = int(ncomp)
         self.domain_component = comp.astype(np.int64)
         opts = dict(permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True))
+        if not (h > 0 and np.isfinite(h)) or h < 1e-9 * max(float(np.ptp(x, 0).max()), 1e-300):
+            raise ParameterError("points", "a cloud with distinct points", f"mean spacing {h:g}")
         # Heat step with the positive part of the cotan weights: an M-matrix, so u >= 0 and the
         # triangular solves keep tiny far-field values relatively accurate (the full cotan
         # Laplacian of a point-cloud triangle soup has obtuse slivers; with it, u loses all
@@ -284,9 +286,13 @@ class GeodesicSolver:
         off.data = np.minimum(off.data, 0.0)
         off.eliminate_zeros()
         Lpos = off - sp.diags(np.asarray(off.sum(1)).ravel())
-        self._heat = spla.splu((Mm + self.t * Lpos).tocsc(), **opts)
-        # tiny mass term: removes the constant null space of each component
-        self._poisson = spla.splu((L + 1e-6 * Mm).tocsc(), **opts)
+        try:
+            self._heat = spla.splu((Mm + self.t * Lpos).tocsc(), **opts)
+            # tiny mass term: removes the constant null space of each component
+            self._poisson = spla.splu((L + 1e-6 * Mm).tocsc(), **opts)
+        except RuntimeError as exc:  # singular: a degenerate cloud (all points nearly coincide)
+            raise ParameterError("points", "a cloud with a non-degenerate extent",
+                                 f"a singular Laplacian ({exc})") from None
 
     # ---- solves ------------------------------------------------------------------------
     def adjacency(self, lengths: bool = False) -> sp.csr_matrix:

@@ -178,6 +178,9 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
         raise UserError(f"the cloud has {n} Gaussians: too few to segment (need at least 8)")
     if not np.isfinite(pts).all():
         raise ParameterError("points", "finite coordinates", "NaN or inf values")
+    if float(np.ptp(pts, 0).max()) < 1e-6:
+        raise UserError("the cloud has no extent (all Gaussians at one point, working units): "
+                        "nothing to segment")
     if not (isinstance(root_index, (int, np.integer)) and 0 <= root_index < n):
         raise ParameterError("root_index", f"an index in [0, {n})", root_index)
     root = int(root_index)

@@ -115,6 +115,8 @@ def test_cloud_smaller_than_n_samples():
 def test_bad_inputs_rejected(plant):
     with pytest.raises(UserError):
         segment_plant(np.zeros((5, 3)), 0)
+    with pytest.raises(UserError):  # no extent
+        segment_plant(np.r_[np.zeros((10, 3)), np.full((10, 3), 1e-9)], 0)
     with pytest.raises(ParameterError):
         segment_plant(plant.points, len(plant.points))
     with pytest.raises(ParameterError):
