@@ -23,7 +23,9 @@ Choices the paper leaves open, and deviations (each with its reason; all switcha
   Gaussians (``geodesic_points``; random keeps the relative density of thin stems, which FPS and
   voxel grids thin out) and distances are interpolated to every Gaussian; ~0.6 s on 20k points
   instead of ~5 s on 100k, with D_r within ~1% of the plant height of the full solve.
-* Floaters (``outlier_factor``) are left out; pieces cut off by a gap narrower than
+* Floaters (``outlier_factor``) are left out of the geodesics; afterwards those within twice the
+  outlier radius of the plant (off-surface fuzz of a leaf) take their nearest Gaussian's label,
+  the others stay unassigned. Pieces cut off by a gap narrower than
   ``bridge_gap`` are joined across it; pieces still apart from the root stay unassigned.
 * Apex test (``apex_surface_neighbors``): of the N_k Euclidean neighbours only those reachable
   along the surface within the same radius vote; a 512-sample ball around a small leaf's tip
@@ -350,6 +352,8 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
         leaf_tip = np.asarray(leaf_tip, np.int64)[perm]
         leaf_base = np.asarray(leaf_base, np.int64)[perm]
     labels[~reach | ~inlier] = 0
+    if (~inlier).any() and inlier.sum() > 1:
+        _attach_outliers(pts, labels, d_root, inlier, reach, p)
     apex_labels = group_label[np.searchsorted(groups, group)].astype(np.int32)
     tm["petiole_labels"] = time.perf_counter() - t1
     tm["total"] = time.perf_counter() - t0
@@ -384,6 +388,22 @@ def _surface_filter(solver, samples, cand, nbrs, dists):
         far = ~(g <= 1.5 * radius[lo:lo + step, None])
         out[lo:lo + step] = np.where(far, -1, nb)
     return out
+
+
+def _attach_outliers(pts, labels, d_root, inlier, reach, p: SegmentParams, k: int = 8) -> None:
+    """Isolated Gaussians close to the plant (a leaf's off-surface fuzz) take the label and D_r of
+    their nearest segmented Gaussian if it is within 2 x the outlier radius (outlier_factor x the
+    median 8th-neighbour distance); farther ones (true floaters) stay unassigned. In place."""
+    ok = np.flatnonzero(inlier & reach)
+    if len(ok) < k + 1:
+        return
+    tree = cKDTree(pts[ok])
+    med = float(np.median(tree.query(pts[ok[:: max(1, len(ok) // 20000)]], k=k + 1)[0][:, -1]))
+    out = np.flatnonzero(~inlier)
+    d, j = tree.query(pts[out], k=1, distance_upper_bound=2 * p.outlier_factor * med)
+    near = np.isfinite(d)
+    labels[out[near]] = labels[ok[j[near]]]
+    d_root[out[near]] = d_root[ok[j[near]]] + d[near]
 
 
 def _inliers(pts: np.ndarray, factor: float, k: int = 8) -> np.ndarray:
