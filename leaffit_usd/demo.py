@@ -1,10 +1,11 @@
 """The one-command demo: ``python -m leaffit_usd.demo IN.ply OUTDIR`` (``make demo``).
 
-Interim version (the full conversion is wired in by the pipeline): loads the capture, prints the
-``inspect`` summary, normalises it into the working frame (estimated up, automatic root) and
-writes ``OUTDIR/quicklook.png``: two orthographic views (front: looking along +Y, side: looking
-along -X, working frame, up = image up) of the Gaussian centres, each drawn as a small disc in
-its DC colour, nearest in front. Exit code 2 with one line for a missing or malformed input.
+Loads the capture, prints the ``inspect`` summary, writes ``OUTDIR/quicklook.png`` (two
+orthographic views of the Gaussian centres in the working frame: front looking along +Y, side
+looking along -X, each Gaussian a small disc in its DC colour), runs the whole conversion
+(``pipeline.convert``, progress on stderr) to ``OUTDIR/<name>.usda``, validates it, and writes
+``OUTDIR/leaves.png``: the textured leaves as the CPU evaluator produces them (top and front
+views). Exit code 2 with one line for a missing or malformed input.
 """
 from __future__ import annotations
 
@@ -93,8 +94,8 @@ def write_png(path: str | Path, img: np.ndarray) -> None:
             raise OSError(f"could not write {path}: {buf.geterror()}")
 
 
-def run(input_path: str, outdir: str, size: int = 512) -> list[Path]:
-    """Load, summarise (printed), write the quick-look PNG. Returns the written paths."""
+def run(input_path: str, outdir: str, size: int = 512, convert: bool = True) -> list[Path]:
+    """Load, summarise (printed), write the quick-look PNG, convert. Returns the written paths."""
     from leaffit_usd.commands.inspect import format_table, summarize
     from leaffit_usd.splats import load_cloud
     from leaffit_usd.splats.frame import make_frame
@@ -109,23 +110,66 @@ def run(input_path: str, outdir: str, size: int = 512) -> list[Path]:
         raise UserError(f"{out}: exists and is not a directory")
     png = out / "quicklook.png"
     write_png(png, quicklook(pw, cloud.colors, size))
-    return [png]
+    written = [png]
+    if convert:
+        written += convert_and_preview(input_path, out, size)
+    return written
+
+
+def convert_and_preview(input_path: str, out: Path, size: int = 512) -> list[Path]:
+    """Full conversion to ``out/<name>.usda`` + validation + a textured preview of the leaves."""
+    from leaffit_usd.edit.plant_io import load_plant
+    from leaffit_usd.edit.preview import render_leaves, view_rotation
+    from leaffit_usd.pipeline import ConvertOptions, convert
+    from leaffit_usd.runtime.evaluator import evaluate
+    from leaffit_usd.usd.validate import validate_file
+
+    stage = out / f"{Path(input_path).stem}.usda"
+    report = convert(input_path, stage, ConvertOptions())
+    print(f"\nconverted in {report['timings']['total']:.1f} s: {report['counts']['leaves']} leaves, "
+          f"template {report['counts']['template_vertices']} vertices, K = {report['counts']['K']}")
+    checked = validate_file(stage)
+    print(f"validate: {'ok' if not checked.failed() else 'FAILED'} "
+          f"({checked.count('error')} errors, {checked.count('warning')} warnings)")
+    plant = load_plant(stage)
+    a = plant.asset
+    baked = evaluate(a, frame="asset")
+    n = a.n_leaves
+    uvs, side = np.tile(a.template_uvs, (n, 1)), np.tile(a.template_side, n)
+    verts = np.vstack([baked.vertices, baked.stem_vertices])
+    faces = np.vstack([baked.faces, baked.stem_faces + len(baked.vertices)])
+    stem_uv = np.zeros((len(baked.stem_vertices), 2))   # the stem: side 2 = flat stem colour
+    up = str(a.metadata.get("up_axis", "Y"))
+    views = []
+    for view in ("top", "front"):
+        img, _ = render_leaves(verts, faces, np.vstack([uvs, stem_uv]),
+                               np.r_[side, np.full(len(stem_uv), 2, side.dtype)],
+                               plant.front, plant.back, view_rotation(up, view), width=size)
+        views.append(img)
+    h = max(v.shape[0] for v in views)
+    views = [np.pad(v, ((0, h - v.shape[0]), (0, 0), (0, 0)), constant_values=1.0) for v in views]
+    png = out / "leaves.png"
+    write_png(png, (np.clip(np.concatenate(views, axis=1), 0, 1) * 255 + 0.5).astype(np.uint8))
+    files = [stage] + [Path(p) for k, p in sorted(report["outputs"].items()) if k != "stage"]
+    return files + [png]
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m leaffit_usd.demo",
-                                 description="Load a 3DGS plant, print a summary, write a quick-look PNG.")
+                                 description="Load a 3DGS plant, print a summary and a quick look, "
+                                             "convert it to a LeafFit USD asset, preview its leaves.")
     ap.add_argument("input", metavar="IN", help="3DGS capture (.ply or USD)")
     ap.add_argument("outdir", metavar="OUTDIR", help="directory for the outputs (created)")
     ap.add_argument("--size", type=int, default=512, help="pixels per view (default 512)")
+    ap.add_argument("--no-convert", action="store_true", help="only the summary and quick look")
     args = ap.parse_args(argv)
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
     log.handlers[:] = [handler]
-    log.setLevel(logging.WARNING)
+    log.setLevel(logging.INFO)
     log.propagate = False
     try:
-        written = run(args.input, args.outdir, args.size)
+        written = run(args.input, args.outdir, args.size, convert=not args.no_convert)
     except UserError as e:
         sys.stderr.write(f"leaffit-usd demo: error: {e}\n")
         return 2

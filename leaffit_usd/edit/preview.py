@@ -23,11 +23,12 @@ def view_rotation(up: str = "Y", view: str = "top") -> np.ndarray:
 
 
 def render_leaves(vertices, faces, uvs, side, front_tex, back_tex, rotation, width=512,
-                  background=(1.0, 1.0, 1.0)):
+                  background=(1.0, 1.0, 1.0), solid=(0.23, 0.30, 0.12)):
     """Render textured triangles.
 
     vertices : (P, 3) float, asset frame; faces : (F, 3) int; uvs : (P, 2) float in [0, 1]
-    (v up); side : (P,) 0 front / 1 back — picks the texture; *_tex : (H, W, 4) float RGBA
+    (v up); side : (P,) 0 front / 1 back — picks the texture, 2 = untextured (``solid`` colour,
+    e.g. the stem); *_tex : (H, W, 4) float RGBA
     rotation : (3, 3) asset -> view frame (see :func:`view_rotation`)
     Returns ((h, width, 3) float32 image, (h, width) int64 visible face index or -1).
     """
@@ -57,6 +58,7 @@ def render_leaves(vertices, faces, uvs, side, front_tex, back_tex, rotation, wid
         uv = np.einsum("pk,pkc->pc", b, np.asarray(uvs, np.float64)[faces[f]])
         s = np.asarray(side)[faces[f, 0]]
         rgba = np.where(s[:, None] == 0, _sample(front_tex, uv), _sample(back_tex, uv))
+        rgba = np.where(s[:, None] >= 2, np.r_[solid, 1.0].astype(np.float32), rgba)
         opaque = rgba[:, 3] >= 0.5
         rows, cols = np.nonzero(hit)
         img[rows[opaque], cols[opaque]] = rgba[opaque, :3]
