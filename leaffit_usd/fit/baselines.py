@@ -20,9 +20,13 @@ same PCA alignment and scale and only the non-rigid part differs.
 """
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from leaffit_usd.geometry.sampling import farthest_point_sampling
+
+log = logging.getLogger("leaffit_usd")
 
 
 def _normaliser(points: np.ndarray):
@@ -50,7 +54,11 @@ def nricp_baseline(template_vertices: np.ndarray, template_faces: np.ndarray,
     c, r = _normaliser(v)
     mesh = trimesh.Trimesh((v - c) / r, np.asarray(template_faces, np.int64), process=False)
     tgt = (np.asarray(target_points, np.float64) - c) / r
-    out = nricp_amberg(mesh, tgt, distance_threshold=1.0, use_faces=False)
+    try:
+        out = nricp_amberg(mesh, tgt, distance_threshold=1.0, use_faces=False)
+    except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:   # singular system
+        log.warning("NR-ICP failed (%s); keeping the PCA alignment", exc)
+        return v.copy()
     out = np.asarray(out, np.float64) * r + c
     return out if np.isfinite(out).all() else v.copy()
 
