@@ -176,8 +176,11 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
 
     # template control points
     P_all = T.local                                            # template units (scale 1)
-    pidx = farthest_point_sampling(P_all, params.K, start=_start_index(P_all))
-    p = P_all[pidx]
+    if len(P_all) == 0:
+        log.warning("fit: the template leaf %d has no Gaussians; every leaf is placed rigidly", tmpl)
+        p = np.zeros((params.K, 3))
+    else:
+        p = P_all[farthest_point_sampling(P_all, params.K, start=_start_index(P_all))]
     K = len(p)
     if K < params.K:
         log.warning("fit: template leaf %d has only %d distinct points; using K=%d", tmpl, K, K)
@@ -222,12 +225,11 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
         errors[j] = lf.scale * _chamfer_mean(deformed, lf.local / lf.scale)
 
     l2w = np.stack([lf.frame @ np.diag([lf.scale, lf.scale, lf.scale, 1.0]) for lf in leaves])
-    info = params.to_dict()
-    info["time_s"] = round(time.perf_counter() - t0, 3)
+    info = params.to_dict()          # no timings here: the output must be byte-deterministic
     info["degenerate"] = {str(lf.label): lf.degenerate for lf in leaves if lf.degenerate}
     info["template_rule"] = "auto" if params.template == "auto" else "user"
     log.info("fit: %d leaves, template %d, %d rigid fallbacks, %.1f s", L, tmpl,
-             int(fallback.sum()), info["time_s"])
+             int(fallback.sum()), time.perf_counter() - t0)
     return LeafFits(
         template_label=int(tmpl),
         template_points=P_all.astype(np.float32),

@@ -177,3 +177,15 @@ def test_adam_matches_torch():
             ((x ** 2).sum() + x.sin().sum()).backward()
             o.step()
     torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+
+
+def test_all_leaves_degenerate_is_finite(plant, caplog):
+    """Only tiny leaves: warnings, rigid placement, no NaN, no crash."""
+    labels = np.zeros(len(plant.cloud), np.int32)
+    for lab in (1, 2):
+        labels[plant.seg.leaf_indices(lab)[:5]] = lab
+    seg = Segmentation(labels=labels, root_index=0)
+    with caplog.at_level(logging.WARNING, logger="leaffit_usd"):
+        f = fit_leaves(plant.cloud, seg, FitParams(**FAST))
+    assert f.fallback.all() and np.isfinite(f.targets).all() and np.isfinite(f.leaf_to_working).all()
+    assert "degenerate" in caplog.text
