@@ -246,6 +246,30 @@ def _subsample(points: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
     return np.asarray(points[idx], np.float64)
 
 
+def _voxel_subsample(p: np.ndarray, target: int) -> np.ndarray:
+    """About ``target`` rows of ``p`` (M, 3 + C), one per occupied voxel (positions = first 3 columns).
+
+    Spatially even, unlike a random subsample: a thin stem keeps about as many points as a
+    leaf of the same area would, so the stem cue survives subsampling. Deterministic.
+    """
+    if len(p) <= target:
+        return p
+    xyz = p[:, :3]
+    lo = xyz.min(0)
+    ext = float(np.max(xyz.max(0) - lo)) or 1.0
+    size = ext / 64.0
+    keep = None
+    for _ in range(8):  # surfaces: occupied voxels ~ 1 / size**2
+        keys = np.floor((xyz - lo) / size).astype(np.int64)
+        _, first = np.unique(keys, axis=0, return_index=True)
+        keep = first
+        ratio = len(first) / target
+        if 0.8 <= ratio <= 1.25:
+            break
+        size *= np.sqrt(ratio)
+    return p[np.sort(keep)]
+
+
 def _remove_isolated(p: np.ndarray, k: int = 8, factor: float = 4.0) -> np.ndarray:
     """Drop rows whose k-th neighbour is much farther than typical (floaters).
 
@@ -273,6 +297,10 @@ _BANDS = (0.05, 0.10, 0.15, 0.20, 0.25)
 _OFFSET_WEIGHT = 0.1
 _FLAT_WEIGHT = 0.05
 _CANOPY_CHECK_DEG = 40.0
+_COARSE_DIRS = 300      # directions of the coarse search over the sphere
+_COARSE_POINTS = 4000   # points of the coarse search
+_STARTS = 5             # distinct coarse minima refined (random coarse sample)
+_VOXEL_STARTS = 3       # distinct coarse minima refined (spatially even coarse sample)
 
 
 def _root_score(p: np.ndarray, u: np.ndarray) -> tuple[float, np.ndarray]:  # noqa: C901
@@ -366,10 +394,15 @@ def estimate_up_with_confidence(points: np.ndarray, normals: np.ndarray | None =
     centre, while leaves spread wide above. :func:`_root_score` measures this for a direction
     (lower is better). Principal axes are not reliable candidates (an asymmetric plant's axis is
     often 20-30 degrees off every principal axis and the score is sharp), so the score is
-    evaluated on 200 directions spread over the sphere (on a 3k-point subsample), the best three
-    distinct ones are refined by a pattern search on the sphere (cones of 12 and 6 degrees), and
-    the winner once more on a 40k-point subsample (cones of 3 and 1.5 degrees). ``confidence = 1 - best / best_elsewhere``, where ``best_elsewhere``
-    is the best score more than 45 degrees away from the chosen axis (0 = ambiguous).
+    evaluated on 300 directions spread over the sphere on two 4k-point subsamples (a random one
+    and a spatially even one, which keeps a thin stem's points); the best distinct minima
+    (> 30 degrees apart; five and three) are refined by a pattern search on the sphere (cones of
+    12 and 6 degrees), re-scored on a 40k-point random subsample, and the best is refined there
+    (cones of 3 and 1.5 degrees).
+    ``confidence = 1 - best / best_elsewhere`` with ``best_elsewhere`` the best refined minimum
+    more than 45 degrees away (0 = ambiguous; below ``LOW_UP_CONFIDENCE`` check the result).
+    A final gravity check replaces the stem direction by the root-to-canopy direction when the
+    two differ by more than 40 degrees.
     """
     p = np.asarray(points)
     if p.ndim != 2 or p.shape[1] != 3:
@@ -387,21 +420,30 @@ def estimate_up_with_confidence(points: np.ndarray, normals: np.ndarray | None =
     center[:3] = p[:, :3].mean(0)
     p = p - center
     center = center[:3]
-    coarse = _subsample(p, 3000, seed=1)
-    dirs = fibonacci_sphere(200)
-    scores = np.array([_root_score(coarse, d)[0] for d in dirs])
-    order = np.argsort(scores)
-    starts = []
-    for i in order:  # the best few distinct (> 30 degrees apart) minima
-        if all(dirs[i] @ dirs[j] < np.cos(np.radians(30)) for j in starts):
-            starts.append(i)
-        if len(starts) == 3:
-            break
-    refined = [_refine(coarse, dirs[i], scores[i], cones=(12.0, 6.0)) for i in starts]
-    u, best = min(refined, key=lambda r: r[1])
-    u, best = _refine(p, u, _root_score(p, u)[0], cones=(3.0, 1.5))
-    far = [sc for d, sc in zip(dirs, scores) if d @ u < np.cos(np.radians(45))]
-    far += [sc for d, sc in refined if d @ u < np.cos(np.radians(45))]
+    dirs = fibonacci_sphere(_COARSE_DIRS)
+    refined, scores = [], None
+    # two coarse samples: a random one (density-weighted, like the fine sample) and a spatially
+    # even one (keeps a thin stem's points); the best distinct minima of each are refined
+    for coarse, n_starts in ((_subsample(p, _COARSE_POINTS, seed=1), _STARTS),
+                             (_voxel_subsample(p, _COARSE_POINTS), _VOXEL_STARTS)):
+        sc = np.array([_root_score(coarse, d)[0] for d in dirs])
+        scores = sc if scores is None else scores
+        starts = []
+        for i in np.argsort(sc):  # the best few distinct (> 30 degrees apart) minima
+            if all(dirs[i] @ dirs[j] < np.cos(np.radians(30)) for j in starts):
+                starts.append(i)
+            if len(starts) == n_starts:
+                break
+        refined += [_refine(coarse, dirs[i], sc[i], cones=(12.0, 6.0))[0] for i in starts]
+    # choose among the refined minima on the full sample: a thin stem holds few points of the
+    # coarse one, so its sharp minimum can look worse there than a leaf tip's
+    fine = [(_root_score(p, d)[0], k) for k, d in enumerate(refined)]
+    _, k_best = min(fine)
+    u, best = _refine(p, refined[k_best], fine[k_best][0], cones=(3.0, 1.5))
+    cos45 = np.cos(np.radians(45))
+    far = [sc for sc, k in fine if refined[k] @ u < cos45]
+    if not far:
+        far = [sc for d, sc in zip(dirs, scores) if d @ u < cos45]
     second = min(far) if far else np.inf
     conf = float(np.clip(1 - best / second, 0, 1)) if np.isfinite(second) and second > 0 else 0.0
     _, root = _root_score(p, u)
