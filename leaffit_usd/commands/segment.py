@@ -61,9 +61,12 @@ def _pos_float(text):
 
 
 def add_arguments(p) -> None:
+    from leaffit_usd.segment.edits import add_edits_argument
+
     p.add_argument("input", metavar="INPUT", help="3DGS capture: INRIA .ply or USD ParticleField3DGaussianSplat")
     p.add_argument("-o", "--output", required=True, metavar="LABELS.npz", help="output labels file (.npz)")
     p.add_argument("--preview", metavar="SEG.png", help="also draw the segmentation (two orthographic views)")
+    add_edits_argument(p)
     p.add_argument("--report", metavar="R.json", help="write timings and counts as JSON")
     p.add_argument("--prim", default=None, metavar="PATH", help="USD only: the splat prim when there are several")
     g = p.add_argument_group("frame")
@@ -123,6 +126,11 @@ def run(args) -> int:
     timings = {}
     seg = segment_plant(pts, root, params, normals=normals, timings=timings)
     t_seg = time.perf_counter() - t1
+    labels = seg.labels
+    if getattr(args, "edits", None):
+        from leaffit_usd.segment.edits import apply_edits_file
+
+        labels = apply_edits_file(seg.labels, cloud, args.edits, args.input)
     fi = cloud.file_index
 
     def fo(idx):
@@ -130,7 +138,7 @@ def run(args) -> int:
 
     dist = cloud.to_file_order(seg.dist_root.astype(np.float32), fill=np.nan).astype(np.float32)
     out = {
-        "labels": cloud.to_file_order(seg.labels, fill=0).astype(np.int32),
+        "labels": cloud.to_file_order(labels, fill=0).astype(np.int32),
         "root_index": np.int64(fi[seg.root_index]),
         "apex_indices": fo(seg.apex_indices),
         "apex_labels": seg.apex_labels.astype(np.int32),
