@@ -220,18 +220,18 @@ def print_tables(t3, t4, n_plants, n_leaves):
             r = t3[m]
             p = PAPER_T3.get(m if m != "CPD" else "BCPD")
             ps = f"{p[0]:.4f}/{p[1]:.4f}/{p[2]:.4f}" + (" (BCPD)" if m == "CPD" else "")
-            print(f"{m:<20} {r['corr']:8.4f} {r['cd']:8.4f} {r['hd']:8.4f} {r['cpu_per_leaf_s']:10.3f}"
+            print(f"{m:<20} {r['corr']:8.4f} {r['cd']:8.5f} {r['hd']:8.4f} {r['cpu_per_leaf_s']:10.3f}"
                   f" {r['corr_sym']:9.4f}   {ps}")
     print(f"\nTable 4 - control points K (x10)")
     print(f"{'K':<20} {'Corr':>8} {'CD':>8} {'HD':>8} {'CPU s/leaf':>10} {'Corr-sym':>9}")
     for k in KS:
         r = t4[str(k)]
         lab = f"{k}" + (" (default)" if k == 32 else "")
-        print(f"{lab:<20} {r['corr']:8.4f} {r['cd']:8.4f} {r['hd']:8.4f} {r['cpu_per_leaf_s']:10.3f}"
+        print(f"{lab:<20} {r['corr']:8.4f} {r['cd']:8.5f} {r['hd']:8.4f} {r['cpu_per_leaf_s']:10.3f}"
               f" {r['corr_sym']:9.4f}")
     r = t3.get("Ours (w/o optim.)")
     if r:
-        print(f"{'32 (w/o optim.)':<20} {r['corr']:8.4f} {r['cd']:8.4f} {r['hd']:8.4f}"
+        print(f"{'32 (w/o optim.)':<20} {r['corr']:8.4f} {r['cd']:8.5f} {r['hd']:8.4f}"
               f" {r['cpu_per_leaf_s']:10.3f} {r['corr_sym']:9.4f}")
 
 
