@@ -65,7 +65,8 @@ def run_one(name, spec, seed, methods):
                                    normals=working_normals(cloud, fc.frame.rotation)).labels
         elif meth == "ours_paper_rules":  # every switchable deviation from the paper off
             prm = SegmentParams(apex_surface_neighbors=False, blade_first=False, base_refine=False,
-                                lca_on_blade=False, require_blade=False, orientation_aware=False)
+                                lca_on_blade=False, require_blade=False, orientation_aware=False,
+                                tau_relative=0.0, petiole_relative=0.0)
             labels = segment_plant(pts, fc.root_index, prm).labels
         else:
             labels = segment_density(pts, fc.root_index).labels

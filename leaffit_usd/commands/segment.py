@@ -86,7 +86,8 @@ def add_arguments(p) -> None:
     g.add_argument("--paper-rules", action="store_true",
                    help="the paper's rules exactly where ours differ: all N_k Euclidean neighbours "
                         "vote in the apex test, no blade-first / base refinement / LCA-on-blade "
-                        "rules, blade-less instances kept (see leaffit_usd.segment.auto)")
+                        "rules, absolute tau only (no relative lobe grouping), epsilon alone for the "
+                        "petiole, blade-less instances kept (see leaffit_usd.segment.auto)")
     g.add_argument("--seed", type=_pos_int, help="seed of the random geodesic subset (0)")
 
 
@@ -102,7 +103,7 @@ def params_from_args(args):
         kw["orientation_aware"] = True
     if getattr(args, "paper_rules", False):
         kw.update(apex_surface_neighbors=False, blade_first=False, base_refine=False,
-                  lca_on_blade=False, require_blade=False)
+                  lca_on_blade=False, require_blade=False, tau_relative=0.0, petiole_relative=0.0)
     return SegmentParams(**kw).validate()
 
 

@@ -45,6 +45,25 @@ Choices the paper leaves open, and deviations (each with its reason; all switcha
   (a cross-section ring at least epsilon wide just above it); apexes whose paths come down
   petioles to meet on a stem are different leaves, even when touching blades short-cut the
   geodesic between them.
+* Lobes (``tau_relative``): the paper's tau = 0.5 is an absolute margin, but its units cannot be
+  recovered (delta = 0.01 is "approx. 1 cm", so 1 unit ~ 1 m and tau ~ 50 cm, more than a whole
+  potted plant; in our units, plant height 1, no two lobe tips of one leaf are ever 0.5 apart
+  along the blade). The test's meaning is "the direct geodesic is clearly shorter than the path
+  through the LCA", which scales with the paths involved, so we also group two apexes when
+  ``D_a[a'] < (1 - tau_relative) (D_a[lca] + D_a'[lca])`` and both paths, once past their narrow
+  tips, stay on the blade all the way to the LCA (every cross-section ring down to it is at least
+  epsilon wide: no petiole in between). Why 0.1: two lobe tips a lobe length apart fanning at
+  60-90 deg with a sinus at half the lobe length give a ratio of 0.6-0.8 (a deep sinus -> 1);
+  apexes of different leaves whose path runs through the stem give 1 minus the heat method's
+  error (measured 0.97-0.99). Leaves whose blades touch can short-cut far more (ratios 0.88 on a
+  bushy plant), which is why the relative test alone is not enough and needs the no-petiole
+  condition (a petiole, or a stem, lies between two leaves' blades; never between two lobes).
+* Petiole (``petiole_relative``): epsilon = 0.05 alone is the width of a blade on long-thin
+  (grass-like) or narrow-lobed leaves, whose own width then hovers around it and the march stops
+  on the blade. A petiole is a stalk, much narrower than the blade it carries, while a blade's
+  width changes little between consecutive delta bands; so the base also needs the diameter under
+  ``petiole_relative`` (0.5) x the widest diameter the march has seen on this leaf. Elliptic
+  blades narrow smoothly from > 0.1 to the petiole, where both tests hold at once.
 * A Gaussian claimed by several leaves goes to the one where it lies deepest (smallest
   ``D_a / base distance``).
 * Optionally (``orientation_aware``, off by default) with ``normals`` (each flat Gaussian's
@@ -109,6 +128,13 @@ class SegmentParams:
         tau test (ours; True): paths that come down petioles to meet on a stem belong to
         different leaves, whatever a geodesic short-cut between two touching blades says
     require_blade : drop an instance whose local diameter never reaches epsilon (ours; True)
+    tau_relative : (ours; 0.1; 0 = the paper's absolute tau only) also group two apexes when the
+        direct geodesic is shorter than (1 - tau_relative) x the path through the LCA and both
+        paths stay on the blade (rings >= epsilon wide past the tip) down to the LCA: lobes of
+        one blade. See the module docstring for why a relative margin.
+    petiole_relative : (ours; 0.5; 0 = epsilon alone) the petiole base also needs the local
+        diameter under this fraction of the widest diameter seen so far on the leaf's march, so a
+        blade about epsilon wide (long-thin leaves, narrow lobes) is not cut on itself
     seed : seed of the random domain subset
     """
 
@@ -129,6 +155,8 @@ class SegmentParams:
     blade_first: bool = True
     base_refine: bool = True
     lca_on_blade: bool = True
+    tau_relative: float = 0.1
+    petiole_relative: float = 0.5
     seed: int = 0
 
     def validate(self) -> "SegmentParams":
@@ -145,6 +173,10 @@ class SegmentParams:
                 raise ParameterError(name, "a positive number (working units)", v)
         if not (np.isfinite(self.outlier_factor) and self.outlier_factor >= 0):
             raise ParameterError("outlier_factor", "a number >= 0 (0 disables)", self.outlier_factor)
+        for name in ("tau_relative", "petiole_relative"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0 <= v < 1):
+                raise ParameterError(name, "a fraction in [0, 1) (0 disables)", v)
         if not (0 <= self.rho < 1):
             raise ParameterError("rho", "a fraction in [0, 1)", self.rho)
         return self
@@ -295,6 +327,13 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
                 return True
         return False
 
+    def all_blade(i, k_lca):
+        """Is every node of apex i's path down to the LCA on a ring at least epsilon wide (the
+        path never passes a petiole)?"""
+        wide = [ring_width(tree.nodes[v]) >= p.epsilon for v in anc[i][:k_lca + 1].tolist()]
+        first = wide.index(True) if True in wide else len(wide)  # past the narrow tip
+        return first < len(wide) and all(wide[first:])
+
     adj_r, adj_c = [], []
     anc = [np.asarray(pth) for pth in apex_paths]  # tree node indices, apex -> root
     for i in range(A):
@@ -309,6 +348,10 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
             via = da(i, lca_g) + da(j, lca_g)
             log.debug("apex pair %d,%d: direct %.3f via lca %.3f (lca D_r %.3f)", i, j, direct, via,
                       d_root[lca_g])
+            if p.tau_relative > 0 and direct < (1 - p.tau_relative) * via and (
+                    all_blade(i, set_i[lca]) and all_blade(j, pos_j[lca])):
+                adj_r.append(i), adj_c.append(j)  # lobes of one blade (see tau_relative)
+                continue
             if direct < via - p.tau and (not p.lca_on_blade or (on_blade(i, set_i[lca], lca)
                                                                 and on_blade(j, pos_j[lca], lca))):
                 adj_r.append(i), adj_c.append(j)
@@ -532,12 +575,15 @@ def _petiole_base(pts, d_a, path_g, junction_g, p: SegmentParams):
         band = order[lo:hi]
         return float(np.sqrt(((pts[band] - pts[path_g[k]]) ** 2).sum(1).max())) if len(band) else 0.0
 
+    widest = 0.0
     for k in range(1, len(path_g)):
         c = dvals[k]
         diam = diameter(k)
+        widest = max(widest, diam)
         if diam >= p.epsilon:
             has_blade = True
-        if c >= protect and diam < p.epsilon and (has_blade or not p.blade_first):
+        narrow = diam < p.epsilon and (p.petiole_relative <= 0 or diam < p.petiole_relative * widest)
+        if c >= protect and narrow and (has_blade or not p.blade_first):
             if p.base_refine:
                 k = _refine_base(k, diam, dvals, diameter, p)
             return int(path_g[k]), float(dvals[k]), has_blade

@@ -147,3 +147,36 @@ def test_baseline_runs_and_is_sane(plant):
     assert r.labels.shape == (len(plant.points),) and r.labels.min() >= 0
     with pytest.raises(UserError):
         segment_density(np.zeros((3, 3)), 0)
+
+
+def test_lobes_of_one_blade_are_grouped_by_the_relative_margin():
+    """Two-lobed blades: each lobe tip is an apex. The paper's absolute tau = 0.5 (in plant
+    heights) never groups them (lobes are ~0.1 apart along the blade), so a blade splits into two
+    leaves; the relative margin (direct < 0.9 x via the LCA, paths on the blade to the LCA) joins
+    them, while different leaves (their paths meet on the stem, after petioles) stay apart."""
+    pl = make_plant(n_leaves=6, seed=1, lobed=True)
+    seg = segment_plant(pl.points, pl.root_index)
+    s = segmentation_scores(seg.labels, pl.labels)
+    assert len(seg.apex_indices) > 6  # some blade has two apexes (its lobe tips)
+    assert seg.n_leaves == 6 and s.miou >= MIN_MIOU and s.pq >= MIN_MIOU
+    old = segment_plant(pl.points, pl.root_index, SegmentParams(tau_relative=0.0))
+    assert old.n_leaves > 6  # the absolute margin alone splits a lobed blade
+
+
+def test_blade_about_epsilon_wide_is_not_cut_on_itself():
+    """Long-thin blades ~0.06 wide (epsilon = 0.05): their own width hovers about epsilon, so
+    epsilon alone stops the march on the blade and leaves most of it to the stem; the base also
+    needs the diameter under half the widest seen on the leaf (the petiole is ~0.01 wide)."""
+    pl = make_plant(n_leaves=6, seed=1, leaf_width=0.06, leaf_length=0.35)
+    seg = segment_plant(pl.points, pl.root_index)
+    s = segmentation_scores(seg.labels, pl.labels)
+    assert seg.n_leaves == 6 and s.miou >= MIN_MIOU and s.pq >= MIN_MIOU
+    old = segment_plant(pl.points, pl.root_index, SegmentParams(petiole_relative=0.0))
+    assert segmentation_scores(old.labels, pl.labels).miou < 60  # cut on the blade
+
+
+@pytest.mark.parametrize("name,value", [("tau_relative", 1.0), ("tau_relative", -0.1),
+                                        ("petiole_relative", 1.5), ("petiole_relative", float("nan"))])
+def test_relative_rules_validated(name, value):
+    with pytest.raises(ParameterError):
+        SegmentParams(**{name: value}).validate()

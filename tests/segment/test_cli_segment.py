@@ -85,6 +85,7 @@ def test_root_by_point_and_params(ply, tmp_path):
     z = np.load(out)
     prm = json.loads(str(z["params"]))
     assert prm["tau"] == 0.4 and prm["orientation_aware"] and not prm["base_refine"]
+    assert prm["tau_relative"] == 0 and prm["petiole_relative"] == 0  # the paper's rules exactly
     assert segmentation_scores(z["labels"], gt).tp >= 4  # the paper's rules: leaves found
 
 
