@@ -27,8 +27,13 @@ Speed: Gaussians are binned into square tiles (4, 8 or 16 px, chosen from the sp
 footprint) by their 1/255 cut-off radius (3DGS's ``ceil(3 sigma)`` box would be larger); each tile
 composites only its own Gaussians, vectorised over tiles in chunks bounded by ``max_elements``
 (memory); the Gaussian exponents of a tile are one matmul of pixel features [x^2, y^2, xy, x, y, 1]
-with per-Gaussian coefficients. Gradients flow to ``means``, ``cov``,
-``colors`` and ``opacities`` (the binning is done under ``no_grad`` and does not need them).
+with per-Gaussian coefficients; compositing has a hand-written backward (``_Composite``).
+Gradients flow to ``means``, ``cov``, ``colors`` and ``opacities`` (the binning is done under
+``no_grad`` and does not need them). Measured (1 torch thread, CPU time, forward + backward):
+2,000 Gaussians at 64^2 px ~25 ms, 7,000 at 128^2 ~85 ms, 20,000 at 256^2 ~0.25 s (the first
+tiled version was 1.5-2.5x slower; a per-pixel dense version ~10x). On a shared, oversubscribed
+machine call ``torch.set_num_threads(1)``: torch's OpenMP pool turns each small op into a
+multi-millisecond stall there (measured 3 ms -> 110 ms for a 6-Gaussian render).
 
 For several small images (e.g. one per leaf) lay them side by side in one call: offset each
 group's x by a multiple of its width; the tiling keeps them independent.
