@@ -31,7 +31,7 @@ with per-Gaussian coefficients; compositing has a hand-written backward (``_Comp
 Gradients flow to ``means``, ``cov``, ``colors`` and ``opacities`` (the binning is done under
 ``no_grad`` and does not need them). Measured (1 torch thread, CPU time, forward + backward):
 2,000 Gaussians at 64^2 px ~25 ms, 7,000 at 128^2 ~85 ms, 20,000 at 256^2 ~0.25 s (the first
-tiled version was 1.5-2.5x slower; a per-pixel dense version ~10x). On a shared, oversubscribed
+tiled version was 1.5-2.5x slower). On a shared, oversubscribed
 machine call ``torch.set_num_threads(1)``: torch's OpenMP pool turns each small op into a
 multi-millisecond stall there (measured 3 ms -> 110 ms for a 6-Gaussian render).
 
