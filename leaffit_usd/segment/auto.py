@@ -328,11 +328,18 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
         return False
 
     def all_blade(i, k_lca):
-        """Is every node of apex i's path down to the LCA on a ring at least epsilon wide (the
-        path never passes a petiole)?"""
-        wide = [ring_width(tree.nodes[v]) >= p.epsilon for v in anc[i][:k_lca + 1].tolist()]
-        first = wide.index(True) if True in wide else len(wide)  # past the narrow tip
-        return first < len(wide) and all(wide[first:])
+        """Does apex i's path, once past its narrow tip (a ring at least epsilon wide), stay on
+        the blade down to the LCA, never passing a petiole (a ring narrower than epsilon and, with
+        ``petiole_relative``, than that fraction of the widest ring seen: the petiole rule)?"""
+        w = np.asarray([ring_width(tree.nodes[v]) for v in anc[i][:k_lca + 1].tolist()])
+        wide = np.flatnonzero(w >= p.epsilon)
+        if not len(wide):
+            return False
+        w = w[wide[0]:]
+        petiole = w < p.epsilon
+        if p.petiole_relative > 0:
+            petiole &= w < p.petiole_relative * np.maximum.accumulate(w)
+        return not petiole.any()
 
     adj_r, adj_c = [], []
     anc = [np.asarray(pth) for pth in apex_paths]  # tree node indices, apex -> root
