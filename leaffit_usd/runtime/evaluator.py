@@ -18,8 +18,9 @@ precision.
 Use :class:`LeafEvaluator` when the same template is evaluated many times (animation: new
 targets per frame); :func:`evaluate` is the one-off wrapper.
 
-Conventions: quaternions are (w, x, y, z), real part first, and need not be normalised (USD
-normalises ``orientations`` too); ``frame="input"`` returns the input capture's frame via
+Conventions: quaternions are (w, x, y, z), real part first, normalised here (USD requires unit
+quaternions but ``ComputeInstanceTransformsAtTime`` uses them as given: half-precision
+``orientations`` are off unit length by up to ~1e-3, hence the writer's float ``orientationsf``); ``frame="input"`` returns the input capture's frame via
 ``asset.asset_to_input``, ``frame="asset"`` the stage's own frame.
 """
 from __future__ import annotations
@@ -89,7 +90,8 @@ def instance_matrices(positions: np.ndarray, orientations: np.ndarray,
     positions : (L, 3), orientations : (L, 4) quaternions (w, x, y, z), scales : (L, 3).
     Returns (L, 4, 4) float64 mapping the instance's local frame to the asset frame:
     M = T(positions) R(orientations) S(scales), as ``UsdGeom.PointInstancer`` composes them.
-    Quaternions are normalised first (as USD does); a zero quaternion is an error.
+    Quaternions are normalised first (USD's own ComputeInstanceTransformsAtTime does not; the
+    two agree for unit quaternions); a zero quaternion is an error.
     """
     pos = np.asarray(positions, np.float64)
     q = np.asarray(orientations, np.float64)
