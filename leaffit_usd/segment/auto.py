@@ -51,13 +51,17 @@ Choices the paper leaves open, and deviations (each with its reason; all switcha
   along the blade). The test's meaning is "the direct geodesic is clearly shorter than the path
   through the LCA", which scales with the paths involved, so we also group two apexes when
   ``D_a[a'] < (1 - tau_relative) (D_a[lca] + D_a'[lca])`` and both paths, once past their narrow
-  tips, stay on the blade all the way to the LCA (every cross-section ring down to it is at least
-  epsilon wide: no petiole in between). Why 0.1: two lobe tips a lobe length apart fanning at
+  tips, stay on the blade all the way to the LCA (no cross-section ring down to it passes the
+  petiole rule below: no petiole in between). Why 0.1: two lobe tips a lobe length apart fanning at
   60-90 deg with a sinus at half the lobe length give a ratio of 0.6-0.8 (a deep sinus -> 1);
   apexes of different leaves whose path runs through the stem give 1 minus the heat method's
   error (measured 0.97-0.99). Leaves whose blades touch can short-cut far more (ratios 0.88 on a
   bushy plant), which is why the relative test alone is not enough and needs the no-petiole
   condition (a petiole, or a stem, lies between two leaves' blades; never between two lobes).
+  Known cost: where one leaf lies on another (the paper's horizontal-overlap failure) a tip's path
+  crosses onto the other blade and the two look like lobes of one blade (ratios 0.73-0.80 on the
+  generated overlap plants): hard_horizontal loses a leaf to this rule.
+  ``tau_relative = 0`` restores the paper's absolute test alone.
 * Petiole (``petiole_relative``): epsilon = 0.05 alone is the width of a blade on long-thin
   (grass-like) or narrow-lobed leaves, whose own width then hovers around it and the march stops
   on the blade. A petiole is a stalk, much narrower than the blade it carries, while a blade's
@@ -130,8 +134,9 @@ class SegmentParams:
     require_blade : drop an instance whose local diameter never reaches epsilon (ours; True)
     tau_relative : (ours; 0.1; 0 = the paper's absolute tau only) also group two apexes when the
         direct geodesic is shorter than (1 - tau_relative) x the path through the LCA and both
-        paths stay on the blade (rings >= epsilon wide past the tip) down to the LCA: lobes of
-        one blade. See the module docstring for why a relative margin.
+        paths stay on the blade (past the tip, no ring narrow enough to be a petiole by the
+        epsilon / petiole_relative rule) down to the LCA: lobes of one blade. See the module
+        docstring for why a relative margin.
     petiole_relative : (ours; 0.5; 0 = epsilon alone) the petiole base also needs the local
         diameter under this fraction of the widest diameter seen so far on the leaf's march, so a
         blade about epsilon wide (long-thin leaves, narrow lobes) is not cut on itself
