@@ -138,7 +138,7 @@ def load_labels(path, cloud) -> np.ndarray:
     return remap[out]
 
 
-def _auto_segment(cloud_working, root_index, seg_params):
+def auto_segment(cloud_working, root_index, seg_params):
     """segment_plant with the orientation-aware normals when the segmentation module offers them."""
     from leaffit_usd.segment import auto
 
@@ -158,7 +158,7 @@ def _segmentation_from_labels(cloud_working, labels, root_index, seg_params, aut
     import dataclasses as dc
 
     if auto_seg is None:
-        auto_seg = _auto_segment(cloud_working, root_index, seg_params)
+        auto_seg = auto_segment(cloud_working, root_index, seg_params)
     labels = np.asarray(labels, np.int32)
     nodes = np.asarray(auto_seg.tree_nodes, np.int64)
     return dc.replace(auto_seg, labels=labels,
@@ -222,7 +222,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     with T.stage("segment", "segmenting leaves" if o.labels is None else f"reading labels {o.labels}"):
         auto_seg = None
         if o.labels is None:
-            auto_seg = _auto_segment(cw, root_index, seg_p)
+            auto_seg = auto_segment(cw, root_index, seg_p)
             labels = np.asarray(auto_seg.labels, np.int32)
         else:
             labels = load_labels(o.labels, cloud)

@@ -19,46 +19,19 @@ examples:
 ORDER = 10
 
 
-def _pos_int(text):
-    import argparse
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v}")
-    return v
-
-
-def _pos_float(text):
-    import argparse
-    import math
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(v) or v <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
-    return v
-
-
 def add_arguments(p) -> None:
+    from leaffit_usd.commands._args import add_frame_arguments, add_segment_arguments
+    from leaffit_usd.commands._args import pos_float as _pos_float
+    from leaffit_usd.commands._args import pos_int as _pos_int
+    from leaffit_usd.segment.edits import add_edits_argument
+
     p.add_argument("input", metavar="INPUT", help="3DGS capture: INRIA .ply or USD ParticleField3DGaussianSplat")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output stage (.usda, .usdc, .usd or .usdz)")
     p.add_argument("--report", metavar="R.json", help="write timings, counts, sizes and fit errors as JSON")
-    g = p.add_argument_group("frame")
-    g.add_argument("--up", default="auto", help="the plant's up direction in the input: auto (default), +x, -y, z, or X,Y,Z")
-    g.add_argument("--root", default="auto", help="root: auto (lowest point along up) or X,Y,Z in the input frame")
-    g.add_argument("--root-index", type=_pos_int, default=None, metavar="I", help="root Gaussian's index in the input file")
-    g = p.add_argument_group("segmentation (paper defaults)")
+    add_frame_arguments(p)
+    g = add_segment_arguments(p)
     g.add_argument("--labels", metavar="L.npz", help="reuse a segmentation: .npz with 'labels' (int per input Gaussian, file order, 0 = stem)")
-    g.add_argument("--edits", metavar="EDITS.json", help="replay manual edits recorded by 'leaffit-usd edit'")
-    g.add_argument("--n-samples", type=_pos_int, help="N_s, FPS samples of the geodesic graph (8192)")
-    g.add_argument("--n-neighbors", type=_pos_int, help="N_k, neighbours per sample (512)")
-    g.add_argument("--tau", type=_pos_float, help="tau, apex grouping threshold (0.5)")
-    g.add_argument("--delta", type=_pos_float, help="delta (0.01)")
-    g.add_argument("--epsilon", type=_pos_float, help="epsilon (0.05)")
-    g.add_argument("--rho", type=_pos_float, help="rho (0.25)")
+    add_edits_argument(g)
     g = p.add_argument_group("fit (paper defaults)")
     g.add_argument("--template", default=None, metavar="ID|auto", help="template leaf: auto (default) or a leaf label")
     g.add_argument("-K", type=_pos_int, default=None, help="control points per leaf (32)")
@@ -87,8 +60,9 @@ def add_arguments(p) -> None:
 def options_from_args(args):
     from leaffit_usd.pipeline import ConvertOptions
 
-    seg = {k: getattr(args, k) for k in ("n_samples", "n_neighbors", "tau", "delta", "epsilon", "rho")
-           if getattr(args, k) is not None}
+    from leaffit_usd.commands._args import segment_overrides
+
+    seg = segment_overrides(args)
     fit = {k: v for k, v in (("K", args.K), ("steps", args.steps), ("lr", args.lr), ("lam", args.lam),
                              ("sigma", args.sigma), ("seed", args.seed)) if v is not None}
     if args.template is not None:

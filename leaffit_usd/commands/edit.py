@@ -35,6 +35,7 @@ log = logging.getLogger("leaffit_usd")
 
 
 def add_arguments(p) -> None:
+    from leaffit_usd.commands._args import add_frame_arguments
     from leaffit_usd.segment.manual import N_SAMPLES
 
     p.add_argument("input", metavar="INPUT", help="3DGS capture (.ply or USD)")
@@ -42,9 +43,6 @@ def add_arguments(p) -> None:
                    help="start from this segmentation (.npz with 'labels', file order); "
                         "default: the automatic segmentation")
     p.add_argument("--empty", action="store_true", help="start with every Gaussian unassigned")
-    p.add_argument("--up", default="auto", help="up direction for the automatic segmentation (as in convert)")
-    p.add_argument("--root", default="auto", help="root for the automatic segmentation: auto or X,Y,Z (as in convert)")
-    p.add_argument("--root-index", type=int, default=None, metavar="I", help="root Gaussian's index in the input file")
     p.add_argument("--edits", metavar="EDITS.json",
                    help="continue a session: replay these edits first (they can be undone)")
     p.add_argument("--edits-out", metavar="PATH", help="where Save writes the edits (default: INPUT stem + .edits.json)")
@@ -55,6 +53,7 @@ def add_arguments(p) -> None:
                    help=f"geodesic subsample size N_s (default {N_SAMPLES}, the paper's)")
     p.add_argument("--min-opacity", type=float, default=0.0,
                    help="Gaussians less opaque than this cannot be picked (default 0: all)")
+    add_frame_arguments(p)  # for the automatic segmentation the session starts from (as in convert)
 
 
 def read_labels_file(path, cloud) -> tuple[np.ndarray, int | None]:
@@ -87,7 +86,7 @@ def read_labels_file(path, cloud) -> tuple[np.ndarray, int | None]:
 
 def automatic_labels(cloud, up="auto", root="auto", root_index=None):
     """(labels (N,) int32 cloud order, root index, Frame) from the automatic segmentation, as convert does."""
-    from leaffit_usd.pipeline import _auto_segment
+    from leaffit_usd.pipeline import auto_segment
     from leaffit_usd.segment.auto import SegmentParams
     from leaffit_usd.splats.frame import make_frame, transform_cloud
 
@@ -96,7 +95,7 @@ def automatic_labels(cloud, up="auto", root="auto", root_index=None):
     choice = make_frame(cloud, up=up, root=root, root_index=root_index)  # bad --up/--root: an error
     cw = transform_cloud(cloud, choice.frame.input_to_working)
     try:
-        labels = np.asarray(_auto_segment(cw, choice.root_index, SegmentParams()).labels, np.int32)
+        labels = np.asarray(auto_segment(cw, choice.root_index, SegmentParams()).labels, np.int32)
         log.info("edit: %d leaves found", int(labels.max(initial=0)))
     except UserError as e:  # a plant the automatic method cannot handle is what edit is for
         log.warning("edit: automatic segmentation failed (%s); starting with every Gaussian "

@@ -1,7 +1,6 @@
 """``leaffit-usd segment INPUT -o labels.npz``: automatic leaf instance segmentation."""
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import time
@@ -40,27 +39,8 @@ ORDER = 20
 log = logging.getLogger("leaffit_usd")
 
 
-def _pos_int(text):
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
-    return v
-
-
-def _pos_float(text):
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not np.isfinite(v) or v <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
-    return v
-
-
 def add_arguments(p) -> None:
+    from leaffit_usd.commands._args import add_frame_arguments, add_segment_arguments, pos_int
     from leaffit_usd.segment.edits import add_edits_argument
 
     p.add_argument("input", metavar="INPUT", help="3DGS capture: INRIA .ply or USD ParticleField3DGaussianSplat")
@@ -69,41 +49,18 @@ def add_arguments(p) -> None:
     add_edits_argument(p)
     p.add_argument("--report", metavar="R.json", help="write timings and counts as JSON")
     p.add_argument("--prim", default=None, metavar="PATH", help="USD only: the splat prim when there are several")
-    g = p.add_argument_group("frame")
-    g.add_argument("--up", default="auto", help="the plant's up direction in the input: auto (default), +x, -y, z, or X,Y,Z")
-    g.add_argument("--root", default="auto", help="root: auto (lowest point along up) or X,Y,Z in the input frame (nearest Gaussian)")
-    g.add_argument("--root-index", type=_pos_int, default=None, metavar="I", help="root Gaussian's index in the input file")
-    g = p.add_argument_group("parameters (paper defaults, working units: plant height 1)")
-    g.add_argument("--n-samples", type=_pos_int, help="N_s, farthest point samples (8192)")
-    g.add_argument("--n-neighbors", type=_pos_int, help="N_k, neighbours of the apex test (512)")
-    g.add_argument("--tau", type=_pos_float, help="tau, apex grouping margin (0.5)")
-    g.add_argument("--delta", type=_pos_float, help="delta, iso-geodesic band width (0.01)")
-    g.add_argument("--epsilon", type=_pos_float, help="epsilon, petiole diameter threshold (0.05)")
-    g.add_argument("--rho", type=float, help="rho, early protection ratio (0.25)")
-    g.add_argument("--orientation", action="store_true",
-                   help="orientation-aware geodesics: no short-cut between a Gaussian and points off its "
-                        "tangent plane (a leaf lying on another); off by default")
-    g.add_argument("--paper-rules", action="store_true",
-                   help="the paper's rules exactly where ours differ: all N_k Euclidean neighbours "
-                        "vote in the apex test, no blade-first / base refinement / LCA-on-blade "
-                        "rules, absolute tau only (no relative lobe grouping), epsilon alone for the "
-                        "petiole, blade-less instances kept (see leaffit_usd.segment.auto)")
-    g.add_argument("--seed", type=_pos_int, help="seed of the random geodesic subset (0)")
+    add_frame_arguments(p)
+    g = add_segment_arguments(p, "parameters (paper defaults, working units: plant height 1)")
+    g.add_argument("--seed", type=pos_int, help="seed of the random geodesic subset (0)")
 
 
 def params_from_args(args):
+    from leaffit_usd.commands._args import segment_overrides
     from leaffit_usd.segment.auto import SegmentParams
 
-    kw = {}
-    for name in ("n_samples", "n_neighbors", "tau", "delta", "epsilon", "rho", "seed"):
-        v = getattr(args, name, None)
-        if v is not None:
-            kw[name] = v
-    if getattr(args, "orientation", False):
-        kw["orientation_aware"] = True
-    if getattr(args, "paper_rules", False):
-        kw.update(apex_surface_neighbors=False, blade_first=False, base_refine=False,
-                  lca_on_blade=False, require_blade=False, tau_relative=0.0, petiole_relative=0.0)
+    kw = segment_overrides(args)
+    if getattr(args, "seed", None) is not None:
+        kw["seed"] = args.seed
     return SegmentParams(**kw).validate()
 
 

@@ -220,7 +220,7 @@ def test_automatic_start_and_its_fallback(plant, monkeypatch, caplog):
     def fail(*a, **k):
         raise UserError("no apex found")
 
-    monkeypatch.setattr("leaffit_usd.pipeline._auto_segment", fail)
+    monkeypatch.setattr("leaffit_usd.pipeline.auto_segment", fail)
     with caplog.at_level(logging.WARNING, logger="leaffit_usd"):
         labels, _, _ = automatic_labels(cloud, up="+z")
     assert not labels.any() and "automatic segmentation failed" in caplog.text

@@ -1,0 +1,73 @@
+"""Argument types and groups shared by several subcommands (frame, segmentation parameters)."""
+from __future__ import annotations
+
+import argparse
+import math
+
+
+def pos_int(text):
+    """argparse type: an integer >= 0."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v}")
+    return v
+
+
+def pos_float(text):
+    """argparse type: a finite number > 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(v) or v <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
+    return v
+
+
+def add_frame_arguments(p) -> None:
+    """--up, --root, --root-index (the input frame's up direction and the root Gaussian)."""
+    g = p.add_argument_group("frame")
+    g.add_argument("--up", default="auto",
+                   help="the plant's up direction in the input: auto (default), +x, -y, z, or X,Y,Z "
+                        "(write negative values as --up=-y)")
+    g.add_argument("--root", default="auto",
+                   help="root: auto (lowest point along up) or X,Y,Z in the input frame (nearest Gaussian)")
+    g.add_argument("--root-index", type=pos_int, default=None, metavar="I",
+                   help="root Gaussian's index in the input file")
+
+
+SEGMENT_FIELDS = ("n_samples", "n_neighbors", "tau", "delta", "epsilon", "rho")
+
+
+def add_segment_arguments(p, title="segmentation (paper defaults, working units: plant height 1)"):
+    """The automatic segmentation's parameters; read back with :func:`segment_overrides`."""
+    g = p.add_argument_group(title)
+    g.add_argument("--n-samples", type=pos_int, help="N_s, farthest point samples (8192)")
+    g.add_argument("--n-neighbors", type=pos_int, help="N_k, neighbours of the apex test (512)")
+    g.add_argument("--tau", type=pos_float, help="tau, apex grouping margin (0.5)")
+    g.add_argument("--delta", type=pos_float, help="delta, iso-geodesic band width (0.01)")
+    g.add_argument("--epsilon", type=pos_float, help="epsilon, petiole diameter threshold (0.05)")
+    g.add_argument("--rho", type=float, help="rho, early protection ratio (0.25)")
+    g.add_argument("--orientation", action="store_true",
+                   help="orientation-aware geodesics: no short-cut between a Gaussian and points off its "
+                        "tangent plane (a leaf lying on another); off by default")
+    g.add_argument("--paper-rules", action="store_true",
+                   help="the paper's rules exactly where ours differ: all N_k Euclidean neighbours "
+                        "vote in the apex test, no blade-first / base refinement / LCA-on-blade "
+                        "rules, absolute tau only (no relative lobe grouping), epsilon alone for the "
+                        "petiole, blade-less instances kept (see leaffit_usd.segment.auto)")
+    return g
+
+
+def segment_overrides(args) -> dict:
+    """SegmentParams field overrides from the arguments :func:`add_segment_arguments` added."""
+    kw = {k: getattr(args, k) for k in SEGMENT_FIELDS if getattr(args, k, None) is not None}
+    if getattr(args, "orientation", False):
+        kw["orientation_aware"] = True
+    if getattr(args, "paper_rules", False):
+        kw.update(apex_surface_neighbors=False, blade_first=False, base_refine=False,
+                  lca_on_blade=False, require_blade=False, tau_relative=0.0, petiole_relative=0.0)
+    return kw
