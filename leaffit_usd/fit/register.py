@@ -34,7 +34,9 @@ Per plant, in the working frame (root at origin, +Z up, height 1):
    template beyond ``max_scale_ratio``, or a non-finite result) get a warning and the rigid fit:
    ``targets = p`` (identity MLS) with the leaf's frame and scale. Never NaN.
 
-Timing (2 shared cores, noisy): see ``benchmarks/deformation.py``.
+Timing (``benchmarks/deformation.py``): a 14-leaf, 100k-Gaussian plant fits in ~10-12 s of CPU
+(1 or 2 torch threads; the small per-step tensors gain little from a second thread), peak RSS
+~0.7 GB for the whole process; ~60 ms per Adam step for 13 leaves x 1,024 Gaussians, 64^2 px.
 """
 from __future__ import annotations
 
