@@ -55,7 +55,8 @@ def nricp_baseline(template_vertices: np.ndarray, template_faces: np.ndarray,
     mesh = trimesh.Trimesh((v - c) / r, np.asarray(template_faces, np.int64), process=False)
     tgt = (np.asarray(target_points, np.float64) - c) / r
     try:
-        out = nricp_amberg(mesh, tgt, distance_threshold=1.0, use_faces=False)
+        with np.errstate(divide="ignore", invalid="ignore"):      # zero-length edges
+            out = nricp_amberg(mesh, tgt, distance_threshold=1.0, use_faces=False)
     except (RuntimeError, ValueError, np.linalg.LinAlgError) as exc:   # singular system
         log.warning("NR-ICP failed (%s); keeping the PCA alignment", exc)
         return v.copy()
