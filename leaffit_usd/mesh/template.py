@@ -287,7 +287,6 @@ def _clean_mask(mask: np.ndarray, sheet_mask: np.ndarray) -> np.ndarray:
 def _side_texture(color: np.ndarray, alpha: np.ndarray, thr: float, sheet_mask: np.ndarray):
     """RGBA float (H, W, 4) straight alpha from a premultiplied render (color (H, W, 3), alpha
     (H, W)), and the splat coverage of the sheet's silhouette."""
-    from scipy.ndimage import binary_fill_holes
 
     straight = color / np.maximum(alpha, 1e-6)[..., None]
     straight = np.clip(straight, 0.0, 1.0)

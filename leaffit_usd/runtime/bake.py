@@ -91,32 +91,6 @@ def _texture_path(texture: str, source: Path, out_dir: Path) -> str:
     return "./" + os.path.relpath(full, out_dir.resolve()).replace(os.sep, "/")
 
 
-def _material(stage, path: str, texture: str, color):
-    from pxr import Gf, Sdf, UsdShade
-
-    mat = UsdShade.Material.Define(stage, path)
-    surf = UsdShade.Shader.Define(stage, f"{path}/PreviewSurface")
-    surf.CreateIdAttr("UsdPreviewSurface")
-    surf.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.6)
-    mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
-    if not texture:
-        surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*color))
-        return mat
-    reader = UsdShade.Shader.Define(stage, f"{path}/StReader")
-    reader.CreateIdAttr("UsdPrimvarReader_float2")
-    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-    reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-    tex = UsdShade.Shader.Define(stage, f"{path}/Texture")
-    tex.CreateIdAttr("UsdUVTexture")
-    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(texture))
-    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
-    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
-    tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
-    surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(
-        tex.ConnectableAPI(), "rgb")
-    return mat
-
-
 def write_baked_usd(path, baked: BakedLeaves, asset, source=None, name: str | None = None) -> None:
     """One Mesh per leaf (+ the stem) as a plain USD stage (.usda/.usdc/.usd), atomically.
 
@@ -125,6 +99,8 @@ def write_baked_usd(path, baked: BakedLeaves, asset, source=None, name: str | No
         ``path``); None keeps the texture paths as authored
     """
     from pxr import Kind, Sdf, Tf, Usd, UsdGeom, UsdShade, Vt
+
+    from leaffit_usd.usd.writer import STEM_COLOR, make_material
 
     path = Path(path)
     L = baked.n_leaves
@@ -162,9 +138,9 @@ def write_baked_usd(path, baked: BakedLeaves, asset, source=None, name: str | No
         looks = f"{root}/Looks"
         UsdGeom.Scope.Define(stage, looks)
         green = (0.1, 0.35, 0.08)
-        mats = [_material(stage, f"{looks}/LeafFront", tex(asset.front_texture), green),
-                _material(stage, f"{looks}/LeafBack", tex(asset.back_texture), green)]
-        stem_mat = _material(stage, f"{looks}/Stem", "", (0.23, 0.30, 0.12))
+        mats = [make_material(stage, f"{looks}/LeafFront", tex(asset.front_texture) or None, green),
+                make_material(stage, f"{looks}/LeafBack", tex(asset.back_texture) or None, green)]
+        stem_mat = make_material(stage, f"{looks}/Stem", None, STEM_COLOR)
         UsdGeom.Scope.Define(stage, f"{root}/Leaves")
         counts = Vt.IntArray.FromNumpy(np.full(len(faces_t), 3, np.int32))
         subsets = [Vt.IntArray.FromNumpy(np.flatnonzero(face_side == s).astype(np.int32))

@@ -31,6 +31,7 @@ import numpy as np
 
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.fit.mls import deform, mls_weights
+from leaffit_usd.splats.cloud import quat_to_matrix
 
 FRAMES = ("input", "asset")
 
@@ -100,17 +101,7 @@ def instance_matrices(positions: np.ndarray, orientations: np.ndarray,
     if (n <= 0).any():
         raise ParameterError("orientations", "non-zero quaternions (w, x, y, z)",
                              f"{int((n[:, 0] <= 0).sum())} zero quaternion(s)")
-    w, x, y, z = (q / n).T
-    R = np.empty((len(q), 3, 3))
-    R[:, 0, 0] = 1 - 2 * (y * y + z * z)
-    R[:, 0, 1] = 2 * (x * y - w * z)
-    R[:, 0, 2] = 2 * (x * z + w * y)
-    R[:, 1, 0] = 2 * (x * y + w * z)
-    R[:, 1, 1] = 1 - 2 * (x * x + z * z)
-    R[:, 1, 2] = 2 * (y * z - w * x)
-    R[:, 2, 0] = 2 * (x * z - w * y)
-    R[:, 2, 1] = 2 * (y * z + w * x)
-    R[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    R = quat_to_matrix(q / n)
     M = np.zeros((len(q), 4, 4))
     M[:, :3, :3] = R * s[:, None, :]
     M[:, :3, 3] = pos

@@ -33,7 +33,6 @@ import numpy as np
 
 import leaffit_usd  # noqa: F401  (registers the schema before the registry is used)
 from leaffit_usd.errors import ParameterError
-from leaffit_usd.fit.mls import deform, mls_weights
 from leaffit_usd.usd import schema as S
 from leaffit_usd.usd.asset import PlantAsset
 
@@ -251,7 +250,7 @@ def _extent(points: np.ndarray):
     return Vt.Vec3fArray.FromNumpy(np.stack([p.min(0), p.max(0)]))
 
 
-def _make_material(stage, path: str, texture: str | None, color, has_alpha: bool):
+def make_material(stage, path: str, texture: str | None, color, has_alpha: bool = False):
     """UsdPreviewSurface material; with a texture, diffuseColor (and opacity) read it via primvars:st."""
     from pxr import Gf, Sdf, UsdShade
 
@@ -290,7 +289,7 @@ def _face_sides(a: PlantAsset) -> np.ndarray:
 
 
 def _author_template_mesh(stage, path: str, a: PlantAsset, looks: str):
-    from pxr import Sdf, UsdGeom, UsdShade, Vt
+    from pxr import Sdf, UsdGeom, Vt
 
     mesh = UsdGeom.Mesh.Define(stage, path)
     mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
@@ -378,14 +377,12 @@ def baked_leaves(a: PlantAsset) -> np.ndarray:
 
 
 def _deformed_leaves(a: PlantAsset) -> np.ndarray:
-    """(L, V, 3) float64 explicit leaves, asset frame: positions + R (s * MLS(x))."""
-    from leaffit_usd.splats.cloud import quat_to_matrix
+    """(L, V, 3) float64 explicit leaves, asset frame: positions + R (s * MLS(x)), computed by the
+    one CPU evaluator (``runtime.evaluator``)."""
+    from leaffit_usd.runtime.evaluator import LeafEvaluator, instance_matrices
 
-    A = mls_weights(a.template_controls, a.template_points, a.sigma, a.reg)
-    local = deform(A, np.asarray(a.targets, np.float64)) * np.asarray(a.scales, np.float64)[:, None, :]
-    q = np.asarray(a.orientations, np.float64)
-    R = quat_to_matrix(q / np.linalg.norm(q, axis=1, keepdims=True))
-    return np.einsum("lij,lvj->lvi", R, local) + np.asarray(a.positions, np.float64)[:, None, :]
+    ev = LeafEvaluator.from_asset(a)
+    return ev.evaluate(a.targets, instance_matrices(a.positions, a.orientations, a.scales))
 
 
 def _write_main_layer(out: Path, a: PlantAsset, name: str, front_tex: str, back_tex: str,
@@ -407,9 +404,9 @@ def _write_main_layer(out: Path, a: PlantAsset, name: str, front_tex: str, back_
     looks = f"{root}/Looks"
     UsdGeom.Scope.Define(stage, looks)
     green = (0.1, 0.35, 0.08)
-    _make_material(stage, f"{looks}/LeafFront", front_tex or None, green, has_alpha)
-    _make_material(stage, f"{looks}/LeafBack", back_tex or None, green, has_alpha)
-    stem_mat = _make_material(stage, f"{looks}/Stem", None, STEM_COLOR, False)
+    make_material(stage, f"{looks}/LeafFront", front_tex or None, green, has_alpha)
+    make_material(stage, f"{looks}/LeafBack", back_tex or None, green, has_alpha)
+    stem_mat = make_material(stage, f"{looks}/Stem", None, STEM_COLOR, False)
 
     # the leaves: one template Mesh prototype + a PointInstancer with the MLS deformer
     inst_path = f"{root}/Leaves"

@@ -3,7 +3,6 @@ origin, +X to the apex, +Z normal)."""
 import numpy as np
 from scipy.spatial import Delaunay
 
-from leaffit_usd.fit.mls import mls_weights
 from leaffit_usd.geometry.sampling import farthest_point_sampling
 from leaffit_usd.usd.asset import PlantAsset
 

@@ -1,5 +1,4 @@
 """Every layout rule of ``leaffit-usd validate`` fails on a stage broken in that one way."""
-import numpy as np
 import pytest
 
 from leaffit_usd.cli import main
