@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-ORDER = ["read_ply", "up_axis", "segmentation", "deformation", "mesh", "size", "evaluator", "manual",
+ORDER = ["read_ply", "up_axis", "segmentation", "deformation", "fit_time", "mesh", "size", "evaluator", "manual",
          "editing"]
 
 
