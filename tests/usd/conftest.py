@@ -27,3 +27,13 @@ def asset(results):
 def textures(results):
     t = results[0]
     return LeafTextures(t.front_texture, t.back_texture)
+
+
+@pytest.fixture()
+def stage_path(tmp_path, asset, textures):
+    """The synthetic plant written as a .usda (with textures) in a fresh folder."""
+    from leaffit_usd.usd import writer as W
+
+    out = tmp_path / "p.usda"
+    W.write_stage(out, asset, textures)
+    return out

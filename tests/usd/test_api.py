@@ -8,13 +8,6 @@ from leaffit_usd.usd import writer as W
 from leaffit_usd.usd.reader import read_stage
 
 
-@pytest.fixture()
-def stage_path(tmp_path, asset, textures):
-    out = tmp_path / "p.usda"
-    W.write_stage(out, asset, textures)
-    return out
-
-
 def test_read_matches_asset(stage_path, asset):
     plant = leaffit_usd.open_plant(stage_path)
     assert plant.n_leaves == asset.n_leaves and plant.K == asset.targets.shape[1]

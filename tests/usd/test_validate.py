@@ -2,15 +2,12 @@
 import pytest
 
 from leaffit_usd.cli import main
-from leaffit_usd.usd import writer as W
 from leaffit_usd.usd.validate import validate_file
 
 
 @pytest.fixture()
-def good(tmp_path, asset, textures):
-    out = tmp_path / "p.usda"
-    W.write_stage(out, asset, textures)
-    return out
+def good(stage_path):
+    return stage_path
 
 
 def _edit(path, fn):
