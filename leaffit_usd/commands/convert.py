@@ -9,8 +9,9 @@ DESCRIPTION = """Run the whole LeafFit pipeline: load -> frame (up axis, root) -
 -> fit the template leaf to every leaf (MLS) -> template mesh + textures + stem -> USD stage.
 
 Outputs .usda / .usdc (textures in textures/ and the baked-leaves payload beside the stage) or
-.usdz (textures packed; the baked payload only with --baked yes). Paper defaults; every parameter is in working units (root at the
-origin, up +Z, plant height 1). A failed conversion leaves no output behind.
+.usdz (textures packed; the baked payload only with --baked yes). Paper defaults where the paper
+is right (--paper-rules, --paper-fit restore it where we differ); every parameter is in working
+units (root at the origin, up +Z, plant height 1). A failed conversion leaves no output behind.
 
 examples:
   leaffit-usd convert plant.ply -o plant.usda
@@ -23,6 +24,9 @@ def add_arguments(p) -> None:
     from leaffit_usd.commands._args import add_frame_arguments, add_segment_arguments
     from leaffit_usd.commands._args import pos_float as _pos_float
     from leaffit_usd.commands._args import pos_int as _pos_int
+
+    def _sigma(text):
+        return "auto" if text.strip().lower() == "auto" else _pos_float(text)
     from leaffit_usd.segment.edits import add_edits_argument
 
     p.add_argument("input", metavar="INPUT", help="3DGS capture: INRIA .ply or USD ParticleField3DGaussianSplat")
@@ -32,13 +36,19 @@ def add_arguments(p) -> None:
     g = add_segment_arguments(p)
     g.add_argument("--labels", metavar="L.npz", help="reuse a segmentation: .npz with 'labels' (int per input Gaussian, file order, 0 = stem)")
     add_edits_argument(g)
-    g = p.add_argument_group("fit (paper defaults)")
+    g = p.add_argument_group("fit (paper defaults, except sigma and the refinement: see --paper-fit)")
     g.add_argument("--template", default=None, metavar="ID|auto", help="template leaf: auto (default) or a leaf label")
     g.add_argument("-K", type=_pos_int, default=None, help="control points per leaf (32)")
     g.add_argument("--steps", type=_pos_int, default=None, help="optimisation steps (200)")
     g.add_argument("--lr", type=_pos_float, default=None, help="learning rate (7e-3)")
     g.add_argument("--lam", type=float, default=None, help="Chamfer weight lambda (0.7)")
-    g.add_argument("--sigma", type=_pos_float, default=None, help="MLS kernel width sigma (0.1)")
+    g.add_argument("--sigma", type=_sigma, default=None, metavar="auto|S",
+                   help="MLS kernel width: auto = 0.7 x the template leaf's size (default), or "
+                        "working units (paper: 0.1)")
+    g.add_argument("--refine", type=_pos_int, default=None, metavar="N",
+                   help="Gauss-Newton refinement iterations after Adam (10; 0 = Adam only)")
+    g.add_argument("--paper-fit", action="store_true",
+                   help="the paper's registration exactly: sigma 0.1, no refinement")
     g.add_argument("--no-optimize", action="store_true", help="initial correspondence only (ablation)")
     g.add_argument("--seed", type=_pos_int, default=None, help="random seed (0)")
     g = p.add_argument_group("mesh")
@@ -63,8 +73,10 @@ def options_from_args(args):
     from leaffit_usd.commands._args import segment_overrides
 
     seg = segment_overrides(args)
-    fit = {k: v for k, v in (("K", args.K), ("steps", args.steps), ("lr", args.lr), ("lam", args.lam),
-                             ("sigma", args.sigma), ("seed", args.seed)) if v is not None}
+    fit = {"sigma": 0.1, "refine": 0} if args.paper_fit else {}
+    fit.update({k: v for k, v in (("K", args.K), ("steps", args.steps), ("lr", args.lr),
+                                  ("lam", args.lam), ("sigma", args.sigma), ("refine", args.refine),
+                                  ("seed", args.seed)) if v is not None})
     if args.template is not None:
         t = str(args.template).strip()
         fit["template"] = int(t) if t.isdigit() else t

@@ -24,6 +24,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
+from leaffit_usd.geometry.pca import pca
+
 log = logging.getLogger("leaffit_usd")
 
 
@@ -44,11 +46,13 @@ class DenoiseParams:
 class DenoiseResult(NamedTuple):
     """points : (M, 3) float64 projected centres (inputs' frame); keep : (N,) bool, inliers
     (``points`` are the projections of ``input[keep]``, in order); residual : (N,) float64 distance
-    of each input point to its local plane."""
+    of each input point to its local plane; normals : (M, 3) float64 unit normal of the local
+    plane each point was last projected onto (sign arbitrary)."""
 
     points: np.ndarray
     keep: np.ndarray
     residual: np.ndarray
+    normals: np.ndarray
 
 
 def _robust_upper(x: np.ndarray, k: float) -> float:
@@ -80,7 +84,7 @@ def denoise_leaf(points: np.ndarray, params: DenoiseParams = DenoiseParams()) ->
     p = np.asarray(points, np.float64)
     n = len(p)
     if n < 4:
-        return DenoiseResult(p.copy(), np.ones(n, bool), np.zeros(n))
+        return DenoiseResult(p.copy(), np.ones(n, bool), np.zeros(n), _flat_normals(p))
     k = int(min(params.neighbors, n))
     tree = cKDTree(p)
     dist, idx = tree.query(p, k=k)
@@ -101,6 +105,7 @@ def denoise_leaf(points: np.ndarray, params: DenoiseParams = DenoiseParams()) ->
     keep = ~bad
     data = p[keep]
     q = data.copy()
+    normals = _flat_normals(data)
     if len(data) >= 4:
         kk = int(min(k, len(data)))
         t2 = cKDTree(data)
@@ -108,7 +113,14 @@ def denoise_leaf(points: np.ndarray, params: DenoiseParams = DenoiseParams()) ->
             dist2, idx2 = t2.query(q, k=kk)
             c2, n2 = _local_planes(q, data, idx2, np.minimum(dist2, params.sigma), params.sigma)
             q = q - (((q - c2) * n2).sum(1))[:, None] * n2
+            normals = n2
     if not np.isfinite(q).all():           # never propagate NaN: fall back to the raw points
         log.warning("denoise: non-finite projection, keeping raw points")
         q = data.copy()
-    return DenoiseResult(q, keep, resid)
+    return DenoiseResult(q, keep, resid, normals)
+
+
+def _flat_normals(points: np.ndarray) -> np.ndarray:
+    """(N, 3): the smallest principal axis of the whole set, for sets too small for local planes."""
+    n = pca(points).axes[2] if len(points) >= 3 else np.array([0.0, 0.0, 1.0])
+    return np.tile(n, (len(points), 1))
