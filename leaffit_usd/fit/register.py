@@ -38,17 +38,18 @@ Per plant, in the working frame (root at origin, +Z up, height 1):
    ``targets = p`` (identity MLS) with the leaf's frame and scale. Never NaN.
 
 Departures from the paper (``FitParams.paper()`` restores it; ``benchmarks/deformation.py``
-prints both rows, on 10 generated plants / 107 leaves):
+prints both rows, on 10 generated plants / 110 target leaves):
 
 * **Kernel width relative to the leaf**: sigma = 0.7 x the template leaf's size (RMS radius in its
-  plane) instead of 0.1 plant heights. The paper's value is tied to the size of its plants' leaves
-  relative to the plant; our leaves range 0.05-0.14 in size, so one absolute width is too smooth
-  for small leaves (cannot follow their fold and droop) and too local for large ones.
+  plane) instead of 0.1 plant heights. An absolute width ties the fit to how large the leaves
+  are relative to the plant: on the generated plants (leaf sizes 0.05-0.14) 0.1 is 0.7-2 leaf
+  sizes, too smooth for the smaller leaves to follow their fold, droop and twist. Relative to the
+  template, the field has the same stiffness on any plant.
 * **Refinement** (step 6): Adam stops short of the objective's optimum; the exact solves finish it.
   Together: Corr 0.0085 -> 0.0071, CD 0.00009 -> 0.00006, HD 0.192 -> 0.168 (x10).
 The denoising sigma stays the paper's 0.1 (``denoise``).
 
-Timing (``benchmarks/deformation.py``): a 14-leaf, 100k-Gaussian plant fits in ~10-12 s of CPU
+Timing (``benchmarks/fit_time.py``): a 14-leaf, 100k-Gaussian plant fits in ~13 s wall on 2 cores
 (1 or 2 torch threads; the small per-step tensors gain little from a second thread), peak RSS
 ~0.7 GB for the whole process; ~60 ms per Adam step for 13 leaves x 1,024 Gaussians, 64^2 px.
 """
