@@ -24,10 +24,10 @@ def add_arguments(p) -> None:
     from leaffit_usd.commands._args import add_frame_arguments, add_segment_arguments
     from leaffit_usd.commands._args import pos_float as _pos_float
     from leaffit_usd.commands._args import pos_int as _pos_int
+    from leaffit_usd.segment.edits import add_edits_argument
 
     def _sigma(text):
         return "auto" if text.strip().lower() == "auto" else _pos_float(text)
-    from leaffit_usd.segment.edits import add_edits_argument
 
     p.add_argument("input", metavar="INPUT", help="3DGS capture: INRIA .ply or USD ParticleField3DGaussianSplat")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output stage (.usda, .usdc, .usd or .usdz)")
@@ -73,7 +73,9 @@ def options_from_args(args):
     from leaffit_usd.commands._args import segment_overrides
 
     seg = segment_overrides(args)
-    fit = {"sigma": 0.1, "refine": 0} if args.paper_fit else {}
+    from leaffit_usd.fit.register import PAPER_FIT
+
+    fit = dict(PAPER_FIT) if args.paper_fit else {}
     fit.update({k: v for k, v in (("K", args.K), ("steps", args.steps), ("lr", args.lr),
                                   ("lam", args.lam), ("sigma", args.sigma), ("refine", args.refine),
                                   ("seed", args.seed)) if v is not None})

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-DEFAULT_SIGMA = 0.1   # kernel width, working units (paper: sigma = 0.1)
+DEFAULT_SIGMA = 0.1   # kernel width, working units: the paper's (fit_leaves defaults to one relative to the template leaf)
 DEFAULT_REG = 0.01    # regulariser, as a fraction of sigma
 
 

@@ -67,7 +67,7 @@ from scipy.spatial import ConvexHull, cKDTree
 
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.fit.denoise import DenoiseParams, denoise_leaf
-from leaffit_usd.fit.mls import DEFAULT_REG, mls_weights
+from leaffit_usd.fit.mls import DEFAULT_REG, DEFAULT_SIGMA, mls_weights
 from leaffit_usd.fit.result import LeafFits
 from leaffit_usd.geometry.pca import leaf_frame, pca
 from leaffit_usd.geometry.sampling import farthest_point_sampling
@@ -76,6 +76,10 @@ from leaffit_usd.splats.cloud import GaussianCloud
 from leaffit_usd.splats.render import render_orthographic
 
 log = logging.getLogger("leaffit_usd")
+
+#: FitParams overrides that give the paper's registration exactly (``FitParams.paper()``,
+#: ``convert --paper-fit``): its absolute kernel width, Adam only.
+PAPER_FIT = {"sigma": DEFAULT_SIGMA, "refine": 0}
 
 
 @dataclass
@@ -124,7 +128,7 @@ class FitParams:
     @classmethod
     def paper(cls, **overrides) -> "FitParams":
         """The paper's registration exactly: sigma = 0.1 for the kernel, Adam only."""
-        return cls(**{"sigma": 0.1, "refine": 0, **overrides})
+        return cls(**{**PAPER_FIT, **overrides})
 
     def validate(self) -> None:
         for name, lo in (("K", 1), ("steps", 0), ("image_size", 8), ("max_points", 16),
@@ -204,7 +208,7 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
     tmpl = _choose_template(leaves, params)
     T = leaves[tmpl - 1]
     if params.sigma == "auto":
-        sigma = params.sigma_relative * T.size if T.size > 0 else 0.1
+        sigma = params.sigma_relative * T.size if T.size > 0 else DEFAULT_SIGMA
         log.info("fit: MLS kernel width sigma = %.4f (%.2f x template size %.4f)", sigma,
                  params.sigma_relative, T.size)
         params = replace(params, sigma=float(sigma))
@@ -424,7 +428,7 @@ def _empty_fits(params: FitParams) -> LeafFits:
     return LeafFits(0, np.zeros((0, 3), np.float32), np.zeros(0, np.int64),
                     np.zeros((K, 3), np.float32), np.zeros(0, np.int32),
                     np.zeros((0, K, 3), np.float32), np.zeros((0, 4, 4)), np.zeros(0, np.float32),
-                    np.zeros(0, bool), 0.1 if params.sigma == "auto" else float(params.sigma),
+                    np.zeros(0, bool), DEFAULT_SIGMA if params.sigma == "auto" else float(params.sigma),
                     float(params.reg), params.to_dict())
 
 
