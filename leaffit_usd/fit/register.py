@@ -553,8 +553,8 @@ def _refine(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray,
     """Gauss-Newton refinement of the target control points after Adam (ours, beyond the paper).
 
     Why: Adam at the paper's lr for 200 steps stops short of the optimum of the objective (the
-    affine-MLS weights couple neighbouring handles, so the problem is ill-conditioned: 600 steps
-    still improve it). The deformed template is linear in q (``f = A q``), so with the nearest
+    affine-MLS weights couple neighbouring handles, so the problem is ill-conditioned and Adam
+    converges slowly). The deformed template is linear in q (``f = A q``), so with the nearest
     neighbours held fixed the objective is a linear least-squares problem in q, solved exactly:
 
         E(q) = w_plane * mean_a (n_a . (A_a q - y_a))^2                      (depth term)
