@@ -55,7 +55,8 @@ from leaffit_usd.geometry.pca import to_local  # noqa: E402
 from leaffit_usd.io_util import atomic_path  # noqa: E402
 from leaffit_usd.metrics.deformation import mesh_metrics  # noqa: E402
 from leaffit_usd.segment.result import Segmentation  # noqa: E402
-from leaffit_usd.splats.frame import Frame, rotation_to_z, transform_cloud  # noqa: E402
+from leaffit_usd.splats.frame import Frame, rotation_to_z  # noqa: E402
+from leaffit_usd.splats.transform import transform_cloud  # noqa: E402
 
 METHODS = ["PCA", "NR-ICP", "CPD", "Ours (w/o optim.)", "Ours (paper)", "Ours (full)"]
 KS = [16, 32, 64]

@@ -86,7 +86,7 @@ def side_by_side(a, b):
 
 
 def main(argv=None) -> int:
-    from leaffit_usd.demo import write_png
+    from leaffit_usd.image_io import write_image
     from leaffit_usd.edit.plant_io import load_plant, save_plant
     from leaffit_usd.edit.retarget import retarget_asset
     from leaffit_usd.edit.texture import overlay_decal
@@ -125,7 +125,7 @@ def main(argv=None) -> int:
                         "leaves_showing_decal": int(sum(visible[j] > 0 for j in seen)),
                         "decal_pixels_per_leaf": visible,
                         "validation_errors": validate_file(edited_path).count("error")}
-    write_png(Path(args.docs) / "editing_decal.png",
+    write_image(Path(args.docs) / "editing_decal.png",
               (np.clip(side_by_side(before, after), 0, 1) * 255 + 0.5).astype(np.uint8))
 
     # retargeting across species
@@ -146,7 +146,7 @@ def main(argv=None) -> int:
         if (target, source) == PAIRS[0]:
             b, _ = render_plant(tp, "top")
             a, _ = render_plant(load_plant(out), "top")
-            write_png(Path(args.docs) / "editing_retarget.png",
+            write_image(Path(args.docs) / "editing_retarget.png",
                       (np.clip(side_by_side(b, a), 0, 1) * 255 + 0.5).astype(np.uint8))
 
     d = results["decal"]

@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from leaffit_usd.metrics import segmentation_scores  # noqa: E402
-from leaffit_usd.segment.edits import apply_edits_file, gaussian_normals, plant_frame  # noqa: E402
+from leaffit_usd.segment.edits import apply_edits_file, flat_normals, plant_frame  # noqa: E402
 from leaffit_usd.segment.manual import ManualSegmenter, SampledGeodesics  # noqa: E402
 from leaffit_usd.segment.picking import GaussianBVH, pick_brute_force  # noqa: E402
 from leaffit_usd.splats import load_cloud, write_ply  # noqa: E402
@@ -87,7 +87,7 @@ def timing_benchmark(n_gaussians: int, n_rays: int, seed: int = 0) -> dict:
 
     height, _ = plant_frame(cloud)
     t = time.perf_counter()
-    geo = SampledGeodesics(cloud.means, height, normals=gaussian_normals(cloud))
+    geo = SampledGeodesics(cloud.means, height, normals=flat_normals(cloud))
     setup_s = time.perf_counter() - t
     seg = ManualSegmenter(cloud.means, np.zeros(len(cloud), np.int32), height, geodesics=geo)
     leafy = np.flatnonzero(gt.labels[cloud.file_index] > 0)

@@ -29,10 +29,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from leaffit_usd.fit.register import FitParams, fit_leaves  # noqa: E402
-from leaffit_usd.mesh.template import (MeshParams, build_template_mesh, point_sheet_distance,  # noqa: E402
-                                       write_image)
+from leaffit_usd.image_io import write_image  # noqa: E402
+from leaffit_usd.mesh.template import MeshParams, build_template_mesh, point_sheet_distance  # noqa: E402
 from leaffit_usd.segment.result import Segmentation  # noqa: E402
-from leaffit_usd.splats.frame import Frame, transform_cloud  # noqa: E402
+from leaffit_usd.splats.frame import Frame  # noqa: E402
+from leaffit_usd.splats.transform import transform_cloud  # noqa: E402
 from leaffit_usd.splats.ply import read_ply  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"

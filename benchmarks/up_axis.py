@@ -5,7 +5,7 @@
 For every plant of ``samples.benchmark_suite()`` and ``--seeds`` random global frames each
 (the generator places each plant by a random similarity, like an SfM reconstruction), runs
 ``estimate_up_with_confidence`` on the Gaussian centres and normals (``--points-only``: centres
-only) and ``resolve_root(..., "auto")`` with
+only) and ``resolve_root`` (automatic root) with
 the estimated up; reports the angle to the true up, the root's distance to the true root
 (fraction of plant height) and the confidence. Writes benchmarks/results/up_axis.json.
 """
@@ -24,8 +24,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from leaffit_usd.io_util import atomic_write_bytes  # noqa: E402
-from leaffit_usd.splats.frame import (estimate_up_with_confidence, gaussian_normals,  # noqa: E402
-                                      resolve_root)
+from leaffit_usd.splats.root import resolve_root  # noqa: E402
+from leaffit_usd.splats.up_axis import estimate_up_with_confidence  # noqa: E402
 from samples import benchmark_suite, make_plant  # noqa: E402
 
 
@@ -44,11 +44,11 @@ def main(argv=None) -> int:
             s = seed * 1000 + k
             cloud, gt = make_plant(dataclasses.replace(spec), s)
             t = time.perf_counter()
-            normals = None if args.points_only else gaussian_normals(cloud)
+            normals = None if args.points_only else cloud.shortest_axes()
             est = estimate_up_with_confidence(cloud.means, normals)
             dt = time.perf_counter() - t
             err = float(np.degrees(np.arccos(np.clip(est.up @ gt.up, -1, 1))))
-            ri = resolve_root(cloud, "auto", None, est.up)
+            ri = resolve_root(cloud, None, None, est.up)
             rerr = float(np.linalg.norm(cloud.means[ri] - gt.root) / gt.height)
             rows.append({"plant": name, "seed": s, "up_error_deg": err, "confidence": est.confidence,
                          "root_error_height": rerr, "seconds": dt})

@@ -202,10 +202,9 @@ class Plant:
             rel = f"textures/{name}.edited{ext}"
             shutil.copyfile(src, self.path.parent / rel)
         else:
-            from leaffit_usd.usd.writer import WriteOptions, _write_texture
+            from leaffit_usd.image_io import write_image
             rel = f"textures/{name}.edited.png"
-            _write_texture(self.path.parent / rel, np.asarray(image), WriteOptions(texture_format="png",
-                                                                                   texture_max_size=16384))
+            write_image(self.path.parent / rel, np.asarray(image))
         root = self.stage.GetDefaultPrim()
         mat = self.stage.GetPrimAtPath(root.GetPath().AppendPath(f"Looks/Leaf{side.capitalize()}"))
         if not mat:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from leaffit_usd.errors import UserError
-from leaffit_usd.io_util import atomic_path
+from leaffit_usd.image_io import write_image
 
 log = logging.getLogger("leaffit_usd")
 
@@ -82,18 +82,6 @@ def quicklook(points_working: np.ndarray, colors: np.ndarray, size: int = 512) -
     return (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
 
 
-def write_png(path: str | Path, img: np.ndarray) -> None:
-    """Write an (H, W, 3) uint8 image with OpenImageIO, atomically."""
-    import OpenImageIO as oiio
-
-    h, w, ch = img.shape
-    with atomic_path(path) as tmp:
-        buf = oiio.ImageBuf(oiio.ImageSpec(w, h, ch, oiio.UINT8))
-        buf.set_pixels(oiio.ROI(0, w, 0, h, 0, 1, 0, ch), np.ascontiguousarray(img))
-        if not buf.write(str(tmp)):
-            raise OSError(f"could not write {path}: {buf.geterror()}")
-
-
 def run(input_path: str, outdir: str, size: int = 512, convert: bool = True) -> list[Path]:
     """Load, summarise (printed), write the quick-look PNG, convert. Returns the written paths."""
     from leaffit_usd.commands.inspect import format_table, summarize
@@ -103,13 +91,13 @@ def run(input_path: str, outdir: str, size: int = 512, convert: bool = True) -> 
     cloud = load_cloud(input_path)
     summary = summarize(input_path, cloud=cloud)
     print(format_table(summary))
-    choice = make_frame(cloud, up=summary["up"]["vector"], root="auto")
+    choice = make_frame(cloud, up=np.asarray(summary["up"]["vector"]))
     pw = choice.frame.to_working(cloud.means)
     out = Path(outdir)
     if out.exists() and not out.is_dir():
         raise UserError(f"{out}: exists and is not a directory")
     png = out / "quicklook.png"
-    write_png(png, quicklook(pw, cloud.colors, size))
+    write_image(png, quicklook(pw, cloud.colors, size))
     written = [png]
     if convert:
         written += convert_and_preview(input_path, out, size)
@@ -149,7 +137,7 @@ def convert_and_preview(input_path: str, out: Path, size: int = 512) -> list[Pat
     h = max(v.shape[0] for v in views)
     views = [np.pad(v, ((0, h - v.shape[0]), (0, 0), (0, 0)), constant_values=1.0) for v in views]
     png = out / "leaves.png"
-    write_png(png, (np.clip(np.concatenate(views, axis=1), 0, 1) * 255 + 0.5).astype(np.uint8))
+    write_image(png, (np.clip(np.concatenate(views, axis=1), 0, 1) * 255 + 0.5).astype(np.uint8))
     files = [stage] + [Path(p) for k, p in sorted(report["outputs"].items()) if k != "stage"]
     return files + [png]
 

@@ -30,8 +30,9 @@ log = logging.getLogger("leaffit_usd")
 class ConvertOptions:
     """Options of :func:`convert` (paper defaults everywhere; working units).
 
-    up : "auto" or an axis/vector for ``splats.frame.parse_up`` (input frame)
-    root : "auto" or "X,Y,Z" (input frame); root_index : a Gaussian's index in the input file
+    up : (3,) up vector, input frame, or None to estimate it (the CLI parses --up)
+    root : (3,) point, input frame (nearest Gaussian), or None for the lowest point along up;
+        root_index : a Gaussian's index in the input file
     labels : path of a segmentation .npz (``labels`` int32 per input Gaussian, file order) to use
         instead of the automatic segmentation; edits : an edits.json replayed on the labels
     segment, fit, mesh, stem : overrides of ``SegmentParams``, ``FitParams``, ``MeshParams``,
@@ -42,8 +43,8 @@ class ConvertOptions:
     sheet_offset : front/back sheet separation, fraction of the template's extent
     """
 
-    up: str | None = "auto"
-    root: str | None = "auto"
+    up: np.ndarray | None = None
+    root: np.ndarray | None = None
     root_index: int | None = None
     labels: str | None = None
     edits: str | None = None
@@ -177,7 +178,8 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     """
     from leaffit_usd.io_util import file_sha256
     from leaffit_usd.splats import load_cloud
-    from leaffit_usd.splats.frame import make_frame, transform_cloud
+    from leaffit_usd.splats.frame import make_frame
+    from leaffit_usd.splats.transform import transform_cloud
     from leaffit_usd.usd.assemble import DEFAULT_SHEET_OFFSET, asset_from_results
     from leaffit_usd.usd.writer import FORMATS, LeafTextures, WriteOptions, write_stage
 
@@ -248,8 +250,8 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         "segment": {**_to_dict(seg_p), "labels_file": None if o.labels is None else str(o.labels)},
         "edits": None if o.edits is None else str(o.edits),
         "fit": _to_dict(fit_p), "mesh": _to_dict(mesh_p), "stem": _to_dict(stem_p),
-        "up": o.up if isinstance(o.up, str) or o.up is None else list(map(float, o.up)),
-        "root": o.root, "root_index": o.root_index, "root_gaussian": int(cloud.file_index[root_index]),
+        "up": "auto" if o.up is None else [float(c) for c in o.up],
+        "root": "auto" if o.root is None else [float(c) for c in o.root], "root_index": o.root_index, "root_gaussian": int(cloud.file_index[root_index]),
     }
     with T.stage("write", f"writing {output_path}"):
         asset = asset_from_results(

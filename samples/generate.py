@@ -28,12 +28,14 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from leaffit_usd.geometry.normals import vertex_normals
+from leaffit_usd.geometry.quaternion import matrix_to_quat
 from leaffit_usd.io_util import atomic_path
-from leaffit_usd.splats.cloud import SH_C0, GaussianCloud, matrix_to_quat
+from leaffit_usd.splats.cloud import SH_C0, GaussianCloud
 from leaffit_usd.splats.ply import write_ply
 
 from samples.leaves import (KIND_SHAPES, SHAPES, LeafShapeParams, LeafSheet, make_outline,
-                            make_sheet, vein_field, vertex_normals)
+                            make_sheet, vein_field)
 
 log = logging.getLogger("leaffit_usd")
 

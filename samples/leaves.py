@@ -296,15 +296,6 @@ def make_sheet(outline: Outline, prm: LeafShapeParams, rings: int = 14) -> LeafS
                      apex=P[apex_i].copy(), base=base)
 
 
-def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """(V, 3) area-weighted unit vertex normals of a triangle mesh."""
-    fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    n = np.zeros_like(V)
-    for k in range(3):
-        np.add.at(n, F[:, k], fn)
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-20)
-
-
 # ---------------------------------------------------------------------------------------------
 # colour
 # ---------------------------------------------------------------------------------------------

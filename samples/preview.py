@@ -61,13 +61,9 @@ def main(argv=None) -> int:
     col = _label_colours(gt.labels) if a.labels else cloud.colors
     keep = gt.labels >= 0 if not a.labels else np.ones(len(pts), bool)
     img = render_views(pts[keep], col[keep], a.size)
-    import OpenImageIO as oiio
+    from leaffit_usd.image_io import write_image
 
-    out = oiio.ImageOutput.create(a.out)
-    spec = oiio.ImageSpec(img.shape[1], img.shape[0], 3, oiio.UINT8)
-    out.open(a.out, spec)
-    out.write_image((np.clip(img, 0, 1) * 255).astype(np.uint8))
-    out.close()
+    write_image(a.out, img)
     return 0
 
 

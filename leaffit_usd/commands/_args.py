@@ -4,6 +4,10 @@ from __future__ import annotations
 import argparse
 import math
 
+import numpy as np
+
+from leaffit_usd.errors import ParameterError
+
 
 def pos_int(text):
     """argparse type: an integer >= 0."""
@@ -71,3 +75,45 @@ def segment_overrides(args) -> dict:
         kw.update(apex_surface_neighbors=False, blade_first=False, base_refine=False,
                   lca_on_blade=False, require_blade=False, tau_relative=0.0, petiole_relative=0.0)
     return kw
+
+
+AXES = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1)}
+
+
+def parse_up(text: str | None) -> np.ndarray | None:
+    """--up: 'auto' or None -> None (estimate it); '+y', '-z', 'y' or 'X,Y,Z' -> (3,) float64
+    unit vector, input frame. Raises ParameterError."""
+    t = "auto" if text is None else str(text).strip().lower()
+    if t == "auto":
+        return None
+    sign = -1.0 if t.startswith("-") else 1.0
+    key = t.lstrip("+-")
+    if key in AXES:
+        return sign * np.asarray(AXES[key], dtype=np.float64)
+    try:
+        v = np.asarray([float(c) for c in t.split(",")], dtype=np.float64)
+    except ValueError:
+        raise ParameterError("--up", "an axis (+x, -y, z ...) or a vector X,Y,Z", text) from None
+    if v.shape != (3,) or not np.isfinite(v).all() or np.linalg.norm(v) < 1e-12:
+        raise ParameterError("--up", "a non-zero vector X,Y,Z", text)
+    return v / np.linalg.norm(v)
+
+
+def parse_root(text: str | None) -> np.ndarray | None:
+    """--root: 'auto' or None -> None (the lowest point along up); 'X,Y,Z' -> (3,) float64 point,
+    input frame. Raises ParameterError."""
+    t = "auto" if text is None else str(text).strip().lower()
+    if t in ("", "auto"):
+        return None
+    try:
+        xyz = np.asarray([float(c) for c in t.split(",")], np.float64)
+    except ValueError:
+        raise ParameterError("--root", "'auto' or a point X,Y,Z in the input frame", text) from None
+    if xyz.shape != (3,) or not np.isfinite(xyz).all():
+        raise ParameterError("--root", "'auto' or a point X,Y,Z in the input frame", text)
+    return xyz
+
+
+def frame_options(args) -> dict:
+    """``make_frame`` keywords (up, root, root_index) from :func:`add_frame_arguments`' arguments."""
+    return dict(up=parse_up(args.up), root=parse_root(args.root), root_index=args.root_index)

@@ -70,7 +70,7 @@ def add_arguments(p) -> None:
 def options_from_args(args):
     from leaffit_usd.pipeline import ConvertOptions
 
-    from leaffit_usd.commands._args import segment_overrides
+    from leaffit_usd.commands._args import frame_options, segment_overrides
 
     seg = segment_overrides(args)
     from leaffit_usd.fit.register import PAPER_FIT
@@ -87,7 +87,7 @@ def options_from_args(args):
     mesh = {k: v for k, v in (("vertex_budget", args.vertex_budget), ("texture_size", args.bake_size))
             if v is not None}
     return ConvertOptions(
-        up=args.up, root=args.root, root_index=args.root_index, labels=args.labels, edits=args.edits,
+        **frame_options(args), labels=args.labels, edits=args.edits,
         segment=seg, fit=fit, mesh=mesh, up_axis=args.up_axis.upper(),
         meters_per_unit=args.meters_per_unit, height_m=args.height,
         texture_format=args.texture_format, texture_size=args.texture_size, baked={"auto": "auto", "yes": True, "no": False}[args.baked])

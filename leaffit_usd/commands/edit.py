@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from leaffit_usd.commands import _args
+
 NAME = "edit"
 HELP = "fix a segmentation by hand in a local web page (geodesic drag and brush tools)"
 DESCRIPTION = """Open the plant in a local web page (127.0.0.1 only, a free port, a random token in
@@ -84,11 +86,15 @@ def read_labels_file(path, cloud) -> tuple[np.ndarray, int | None]:
     return labels, root_cloud
 
 
-def automatic_labels(cloud, up="auto", root="auto", root_index=None):
-    """(labels (N,) int32 cloud order, root index, Frame) from the automatic segmentation, as convert does."""
+def automatic_labels(cloud, up=None, root=None, root_index=None):
+    """(labels (N,) int32 cloud order, root index, Frame) from the automatic segmentation, as convert does.
+
+    up, root, root_index : as ``splats.frame.make_frame`` takes them (None = automatic).
+    """
     from leaffit_usd.pipeline import auto_segment
     from leaffit_usd.segment.auto import SegmentParams
-    from leaffit_usd.splats.frame import make_frame, transform_cloud
+    from leaffit_usd.splats.frame import make_frame
+    from leaffit_usd.splats.transform import transform_cloud
 
     from leaffit_usd.errors import UserError
 
@@ -140,7 +146,7 @@ def run(args) -> int:
         log.info("edit: starting with every Gaussian unassigned")
     else:
         log.info("edit: automatic segmentation (as convert does; --empty to skip, --labels to reuse one)")
-        labels, root, frame = automatic_labels(cloud, args.up, args.root, args.root_index)
+        labels, root, frame = automatic_labels(cloud, **_args.frame_options(args))
     edits = load_edits(args.edits, inp) if args.edits else None
     stem = inp.name.rsplit(".", 1)[0]
     edits_out = Path(args.edits_out) if args.edits_out else inp.with_name(stem + ".edits.json")

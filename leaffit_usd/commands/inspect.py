@@ -8,8 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
+from leaffit_usd.commands import _args
 from leaffit_usd.errors import ParameterError
-from leaffit_usd.splats.frame import LOW_UP_CONFIDENCE
+from leaffit_usd.splats.up_axis import LOW_UP_CONFIDENCE
 
 NAME = "inspect"
 HELP = "summarise a 3DGS capture (.ply or USD ParticleField3DGaussianSplat)"
@@ -45,9 +46,11 @@ def _stats(a: np.ndarray) -> dict:
             "max": float(q[4]), "mean": float(a.mean())}
 
 
-def summarize(path: str | os.PathLike, prim: str | None = None, up: str | None = "auto",
+def summarize(path: str | os.PathLike, prim: str | None = None, up: np.ndarray | None = None,
               cloud=None) -> dict:
     """A JSON-ready summary of the capture at ``path`` (loaded unless ``cloud`` is given).
+
+    up : (3,) unit vector, input frame, or None to estimate it.
 
     Keys: file, format, file_bytes, gaussians, dropped, file_gaussians, sh_degree,
     extra_properties {name: dtype}, bounds {min, max, size}, up {vector, source, confidence},
@@ -56,8 +59,8 @@ def summarize(path: str | os.PathLike, prim: str | None = None, up: str | None =
     anisotropy {...} (largest / smallest scale).
     """
     from leaffit_usd.splats import detect_format, load_cloud
-    from leaffit_usd.splats.frame import (estimate_up_with_confidence, gaussian_normals, make_frame,
-                                          parse_up)
+    from leaffit_usd.splats.frame import make_frame
+    from leaffit_usd.splats.up_axis import estimate_up_with_confidence
 
     path = Path(path)
     kind = detect_format(path)
@@ -65,15 +68,15 @@ def summarize(path: str | os.PathLike, prim: str | None = None, up: str | None =
         cloud = load_cloud(path, prim=prim)
     means = cloud.means
     lo, hi = means.min(0).astype(np.float64), means.max(0).astype(np.float64)
-    if up is not None and str(up).strip().lower() != "auto":
-        up_vec, source, conf = parse_up(up), "given", None
+    if up is not None:
+        up_vec, source, conf = np.asarray(up, np.float64), "given", None
     elif len(cloud) < _MIN_ESTIMATE:
         up_vec, source, conf = np.array([0.0, 0.0, 1.0]), "default +z (too few Gaussians to estimate)", 0.0
     else:
-        est = estimate_up_with_confidence(means, gaussian_normals(cloud))
+        est = estimate_up_with_confidence(means, cloud.shortest_axes())
         up_vec, source, conf = est.up, "estimated", float(est.confidence)
     try:
-        choice = make_frame(cloud, up=up_vec, root="auto")
+        choice = make_frame(cloud, up=up_vec)
         root_i, height = choice.root_index, float(choice.frame.height)
     except ParameterError:  # no extent along up (a single Gaussian, a flat sheet across up)
         root_i, height = 0, 0.0
@@ -142,7 +145,7 @@ def format_table(s: dict) -> str:
 
 
 def run(args) -> int:
-    summary = summarize(args.file, prim=args.prim, up=args.up)
+    summary = summarize(args.file, prim=args.prim, up=_args.parse_up(args.up))
     if args.json:
         sys.stdout.write(json.dumps(summary, indent=2) + "\n")
     else:

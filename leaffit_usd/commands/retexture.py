@@ -59,22 +59,23 @@ def _parse_uv(text):
 def run(args) -> int:
     from leaffit_usd.edit import texture as T
     from leaffit_usd.edit.plant_io import load_plant, save_plant
+    from leaffit_usd.image_io import image_has_alpha, read_image
 
     # read every user input before anything is written
     plant = load_plant(args.stage)
     sides = ("front", "back") if args.side == "both" else (args.side,)
     if args.image:
-        img = T.read_image(args.image)
-        alpha = T.image_has_alpha(args.image)
+        img = read_image(args.image)
+        alpha = image_has_alpha(args.image)
         edit = lambda tex: T.replace_texture(tex, img, new_has_alpha=alpha)  # noqa: E731
         what = f"replaced with {args.image}"
     elif args.decal:
-        img = T.read_image(args.decal)
+        img = read_image(args.decal)
         uv = _parse_uv(args.uv)
         edit = lambda tex: T.overlay_decal(tex, img, uv, args.scale, args.rotation)  # noqa: E731
         what = f"decal {args.decal} at uv {uv}"
     else:
-        mask = T.read_image(args.fill_mask)[..., :3].mean(-1, keepdims=True)
+        mask = read_image(args.fill_mask)[..., :3].mean(-1, keepdims=True)
         # the mask may be drawn at any resolution: resampled to the texture's
         edit = lambda tex: T.masked_fill(tex, T.resize_image(mask, *tex.shape[:2])[..., 0])  # noqa: E731
         what = f"masked fill from {args.fill_mask}"

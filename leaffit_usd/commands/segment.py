@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 
+from leaffit_usd.commands import _args
 from leaffit_usd.errors import ParameterError
 
 NAME = "segment"
@@ -77,7 +78,7 @@ def run(args) -> int:
     cloud = load_cloud(args.input, prim=args.prim)
     t_read = time.perf_counter() - t0
     t1 = time.perf_counter()
-    choice = make_frame(cloud, up=args.up, root=args.root, root_index=args.root_index)
+    choice = make_frame(cloud, **_args.frame_options(args))
     frame, root = choice.frame, choice.root_index
     pts = frame.to_working(cloud.means)
     normals = working_normals(cloud, frame.rotation)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from leaffit_usd.edit.texture import read_image
+from leaffit_usd.image_io import read_image
 from leaffit_usd.errors import InputFileError, ParameterError
 from leaffit_usd.usd.asset import PlantAsset
 

@@ -68,7 +68,7 @@ def template_from_leaf_cloud(cloud: GaussianCloud, base_point=None, apex_point=N
     from leaffit_usd.fit.register import FitParams, fit_leaves
     from leaffit_usd.mesh.template import build_template_mesh
     from leaffit_usd.segment.result import Segmentation
-    from leaffit_usd.splats.frame import transform_cloud
+    from leaffit_usd.splats.transform import transform_cloud
     from leaffit_usd.usd.asset import PlantAsset
 
     base, apex = find_base_apex(cloud.means) if base_point is None or apex_point is None else (-1, -1)

@@ -6,62 +6,11 @@ ImageBufAlgo (resize, warp, over, fillholes_pushpull); numpy only moves pixels i
 """
 from __future__ import annotations
 
-import os
-
 import numpy as np
 import OpenImageIO as oiio
 from OpenImageIO import ImageBufAlgo as iba
 
-from leaffit_usd.errors import InputFileError, ParameterError
-from leaffit_usd.io_util import atomic_path
-
-
-# ---- image I/O ------------------------------------------------------------------------------
-def read_image(path: str | os.PathLike) -> np.ndarray:
-    """Read any image OpenImageIO can read -> (H, W, 4) float32 RGBA in [0, 1].
-
-    Grey images are expanded to RGB; images without alpha get alpha = 1.
-    Raises InputFileError when the file is missing or not an image.
-    """
-    path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise InputFileError(path, "no such image file")
-    buf = oiio.ImageBuf(path)
-    if buf.has_error or buf.spec().width == 0:
-        raise InputFileError(path, "cannot read image: " + (buf.geterror().splitlines() or ["unknown format"])[0])
-    px = np.asarray(buf.get_pixels(oiio.FLOAT), np.float32)
-    if px.ndim == 2:
-        px = px[:, :, None]
-    c = px.shape[2]
-    if c == 1:
-        px = np.repeat(px, 3, axis=2)
-    elif c == 2:  # grey + alpha
-        px = np.concatenate([np.repeat(px[:, :, :1], 3, 2), px[:, :, 1:]], axis=2)
-    if px.shape[2] == 3:
-        px = np.concatenate([px, np.ones_like(px[:, :, :1])], axis=2)
-    return np.clip(px[:, :, :4], 0.0, 1.0)
-
-
-def image_has_alpha(path: str | os.PathLike) -> bool:
-    """True when the image file carries an alpha channel."""
-    spec = oiio.ImageBuf(os.fspath(path)).spec()
-    return spec.alpha_channel >= 0 or spec.nchannels in (2, 4)
-
-
-def write_image(img: np.ndarray, path: str | os.PathLike) -> None:
-    """Write (H, W, 4) float RGBA in [0, 1] atomically; 8-bit for PNG/JPEG, half for EXR."""
-    img = np.ascontiguousarray(np.clip(img, 0, 1), np.float32)
-    h, w, c = img.shape
-    ext = os.path.splitext(os.fspath(path))[1].lower()
-    fmt = oiio.HALF if ext == ".exr" else oiio.UINT8
-    spec = oiio.ImageSpec(w, h, c, fmt)
-    if c == 4:
-        spec.alpha_channel = 3
-    buf = oiio.ImageBuf(spec)
-    buf.set_pixels(oiio.ROI(0, w, 0, h, 0, 1, 0, c), img)
-    with atomic_path(path) as tmp:
-        if not buf.write(os.fspath(tmp)):
-            raise InputFileError(path, "cannot write image: " + buf.geterror())
+from leaffit_usd.errors import ParameterError
 
 
 def _to_buf(img: np.ndarray) -> oiio.ImageBuf:

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from leaffit_usd.segment.result import Segmentation
-from leaffit_usd.splats.cloud import GaussianCloud, matrix_to_quat
+from leaffit_usd.geometry.quaternion import matrix_to_quat
+from leaffit_usd.splats.cloud import GaussianCloud
 
 
 @dataclass

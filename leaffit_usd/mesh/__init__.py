@@ -5,7 +5,7 @@ Entry points: :func:`leaffit_usd.mesh.template.build_template_mesh` (+ ``MeshPar
 """
 from leaffit_usd.mesh.result import Stem, TemplateMesh
 from leaffit_usd.mesh.stem import StemParams, build_stem
-from leaffit_usd.mesh.template import MeshParams, build_template_mesh, read_image, write_textures
+from leaffit_usd.mesh.template import MeshParams, build_template_mesh, write_textures
 
 __all__ = ["TemplateMesh", "Stem", "MeshParams", "build_template_mesh", "write_textures",
-           "read_image", "StemParams", "build_stem"]
+           "StemParams", "build_stem"]

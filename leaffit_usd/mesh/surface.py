@@ -30,6 +30,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import Delaunay, cKDTree
 
+from leaffit_usd.geometry.normals import face_normals
+
 log = logging.getLogger("leaffit_usd")
 
 SLIVER_MIN_ANGLE_DEG = 3.0   # boundary faces sharper than this are removed
@@ -133,11 +135,6 @@ def _tri_min_angle(p: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.minimum(np.minimum(ang(la, lb, lc), ang(lb, lc, la)), ang(lc, la, lb))
 
 
-def _face_normals(p: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    n = np.cross(p[faces[:, 1]] - p[faces[:, 0]], p[faces[:, 2]] - p[faces[:, 0]])
-    return n
-
-
 def nonmanifold_vertices(faces: np.ndarray, n: int) -> np.ndarray:
     """Vertices with more than one outgoing boundary half-edge (bow-ties), (k,) int64."""
     if len(faces) == 0:
@@ -189,7 +186,7 @@ def fold_ratio(points, faces, loops=None) -> float:
     areas = [abs(signed_area_xy(points[lp])) for lp in loops]
     outer = max(areas)
     holes = sum(areas) - outer
-    tri = 0.5 * np.abs(_face_normals(points, faces)[:, 2]).sum()
+    tri = 0.5 * np.abs(face_normals(points, faces)[:, 2]).sum()
     return float(max(tri - (outer - holes), 0.0) / max(outer, 1e-30))
 
 
@@ -269,7 +266,7 @@ def _drop_degenerate(points, faces):
     f = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
     _, first = np.unique(np.sort(f, 1), axis=0, return_index=True)
     f = f[np.sort(first)]
-    area = 0.5 * np.linalg.norm(_face_normals(points, f), axis=1)
+    area = 0.5 * np.linalg.norm(face_normals(points, f), axis=1)
     return f[area > 1e-14 * max(np.ptp(points, 0).max(), 1e-12) ** 2]
 
 
@@ -311,7 +308,7 @@ def _largest_component(points, faces):
     ncomp, lab = face_components(faces, len(points))
     if ncomp <= 1:
         return faces, 0
-    area = 0.5 * np.linalg.norm(_face_normals(points, faces), axis=1)
+    area = 0.5 * np.linalg.norm(face_normals(points, faces), axis=1)
     keep = int(np.argmax(np.bincount(lab, weights=area)))
     return faces[lab == keep], ncomp - 1
 
@@ -341,7 +338,7 @@ def _fix_bowties(points, faces):
                                               directed=False)
             else:
                 lab = np.arange(m)
-            area = 0.5 * np.linalg.norm(_face_normals(points, sub), axis=1)
+            area = 0.5 * np.linalg.norm(face_normals(points, sub), axis=1)
             keep = int(np.argmax(np.bincount(lab, weights=area)))
             drop.extend(fi[lab != keep].tolist())
         if not drop:
@@ -360,7 +357,7 @@ def _orient_ccw(points, faces):
     tm = trimesh.Trimesh(points, faces, process=False, validate=False)
     trimesh.repair.fix_winding(tm)
     f = np.asarray(tm.faces, np.int64)
-    if _face_normals(points, f)[:, 2].sum() < 0:
+    if face_normals(points, f)[:, 2].sum() < 0:
         f = f[:, ::-1]
     return np.ascontiguousarray(f)
 
@@ -459,7 +456,7 @@ def bpa_sheet(points: np.ndarray, radii=(2.0, 3.0, 4.0)) -> Sheet:
     faces = _drop_degenerate(pts, faces)
     # folds: a face whose normal opposes its vertices' normals
     if len(faces):
-        fn = _face_normals(pts, faces)
+        fn = face_normals(pts, faces)
         vn = nrm[faces].sum(1)
         keep = (fn * vn).sum(1) > 0
         info["folded_faces_removed"] = int((~keep).sum())

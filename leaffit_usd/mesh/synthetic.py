@@ -12,7 +12,8 @@ import numpy as np
 
 from leaffit_usd.fit.result import LeafFits
 from leaffit_usd.segment.result import Segmentation
-from leaffit_usd.splats.cloud import GaussianCloud, matrix_to_quat
+from leaffit_usd.geometry.quaternion import matrix_to_quat
+from leaffit_usd.splats.cloud import GaussianCloud
 
 TOP_RGB = (0.15, 0.55, 0.12)
 BOTTOM_RGB = (0.65, 0.80, 0.45)

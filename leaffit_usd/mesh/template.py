@@ -51,6 +51,8 @@ from typing import NamedTuple
 import numpy as np
 
 from leaffit_usd.errors import ParameterError
+from leaffit_usd.geometry.normals import vertex_normals
+from leaffit_usd.image_io import write_image
 from leaffit_usd.geometry.sampling import farthest_point_sampling
 from leaffit_usd.mesh import surface as surf
 from leaffit_usd.mesh.result import TemplateMesh
@@ -182,17 +184,6 @@ def build_sheet(samples: np.ndarray, params: MeshParams) -> tuple[surf.Sheet, di
     checks["off_sheet_fraction"] = 0.0
     checks["fallback_reasons"] = tried
     return sheet, checks
-
-
-def vertex_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(S, 3) float64 area-weighted unit vertex normals, oriented to +Z where undefined."""
-    fn = np.cross(points[faces[:, 1]] - points[faces[:, 0]], points[faces[:, 2]] - points[faces[:, 0]])
-    vn = np.zeros_like(points, dtype=np.float64)
-    for k in range(3):
-        np.add.at(vn, faces[:, k], fn)
-    ln = np.linalg.norm(vn, axis=1, keepdims=True)
-    vn = np.where(ln > 1e-20, vn / np.maximum(ln, 1e-30), [0.0, 0.0, 1.0])
-    return vn
 
 
 # ---- UVs and rasterising ---------------------------------------------------------------------------
@@ -436,7 +427,7 @@ def build_template_mesh(cloud_working, fits, params: MeshParams | None = None) -
     P = sheet.points
     Fs = sheet.faces.astype(np.int64)
     S = len(P)
-    normals = vertex_normals(P, Fs)
+    normals = vertex_normals(P, Fs, undefined=(0.0, 0.0, 1.0))
     loops = surf.boundary_loops(Fs, S)
     outer = max(loops, key=lambda lp: abs(surf.signed_area_xy(P[lp]))) if loops else np.arange(S)
 
@@ -524,84 +515,13 @@ class TexturePaths(NamedTuple):
     back: Path
 
 
-def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
-def write_image(path, rgba_u8: np.ndarray, fmt: str | None = None) -> Path:
-    """Write an (H, W, 4) uint8 RGBA image (row 0 = top) with OpenImageIO, atomically.
-
-    png: 8-bit sRGB; exr: half-float, RGB linearised from sRGB, alpha as is (straight).
-    """
-    import OpenImageIO as oiio
-
-    from leaffit_usd.io_util import atomic_path
-
-    path = Path(path)
-    fmt = (fmt or path.suffix.lstrip(".")).lower()
-    if fmt not in FORMATS:
-        raise ParameterError("texture_format", " or ".join(FORMATS), fmt)
-    img = np.ascontiguousarray(rgba_u8, np.uint8)
-    H, W = img.shape[:2]
-    with atomic_path(path) as tmp:
-        out = oiio.ImageOutput.create(str(tmp))
-        if out is None:
-            raise RuntimeError(f"OpenImageIO cannot write {fmt}: {oiio.geterror()}")
-        if fmt == "png":
-            spec = oiio.ImageSpec(W, H, 4, "uint8")
-            spec.attribute("oiio:ColorSpace", "sRGB")
-            # straight alpha as is: without this OIIO un-premultiplies on write, which would
-            # destroy the dilated colours of transparent texels (the mip-map padding)
-            spec.attribute("oiio:UnassociatedAlpha", 1)
-            data = img
-        else:
-            spec = oiio.ImageSpec(W, H, 4, "half")
-            spec.attribute("oiio:ColorSpace", "lin_rec709")
-            spec.attribute("compression", "zip")
-            f = img.astype(np.float32) / 255.0
-            f[..., :3] = _srgb_to_linear(f[..., :3])
-            data = f.astype(np.float16)
-        spec.channelnames = ("R", "G", "B", "A")
-        spec.alpha_channel = 3
-        if not out.open(str(tmp), spec):
-            raise RuntimeError(f"OpenImageIO cannot open {path}: {out.geterror()}")
-        ok = out.write_image(data)
-        out.close()
-        if not ok:
-            raise RuntimeError(f"OpenImageIO failed writing {path}: {out.geterror()}")
-    return path
-
-
-def read_image(path) -> np.ndarray:
-    """(H, W, 4) uint8 RGBA (sRGB) of a texture written by :func:`write_image` (png or exr)."""
-    import OpenImageIO as oiio
-
-    from leaffit_usd.errors import InputFileError
-
-    config = oiio.ImageSpec()
-    config.attribute("oiio:UnassociatedAlpha", 1)  # keep straight alpha (no premultiplication)
-    buf = oiio.ImageBuf(str(path), 0, 0, config)
-    if buf.has_error:
-        raise InputFileError(str(path), f"cannot be read as an image ({buf.geterror()})")
-    px = np.asarray(buf.get_pixels(oiio.FLOAT), np.float64)
-    if px.ndim == 2:
-        px = px[..., None]
-    if px.shape[2] == 1:
-        px = np.repeat(px, 3, 2)
-    if px.shape[2] == 3:
-        px = np.concatenate([px, np.ones_like(px[..., :1])], 2)
-    px = px[..., :4]
-    if Path(path).suffix.lower() == ".exr":
-        c = np.clip(px[..., :3], 0, 1)
-        px[..., :3] = np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1 / 2.4) - 0.055)
-    return np.clip(np.round(px * 255.0), 0, 255).astype(np.uint8)
-
-
 def write_textures(mesh: TemplateMesh, directory, fmt: str = "png", basename: str = "leaf") -> TexturePaths:
     """Write ``<basename>_front.<fmt>`` and ``<basename>_back.<fmt>`` into ``directory``, atomically."""
     if fmt not in FORMATS:
         raise ParameterError("fmt", " or ".join(FORMATS), fmt)
     d = Path(directory)
-    front = write_image(d / f"{basename}_front.{fmt}", mesh.front_texture, fmt)
-    back = write_image(d / f"{basename}_back.{fmt}", mesh.back_texture, fmt)
+    front = d / f"{basename}_front.{fmt}"
+    back = d / f"{basename}_back.{fmt}"
+    write_image(front, mesh.front_texture)
+    write_image(back, mesh.back_texture)
     return TexturePaths(front, back)

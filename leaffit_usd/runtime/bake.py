@@ -32,7 +32,8 @@ from pathlib import Path
 import numpy as np
 
 from leaffit_usd.io_util import atomic_path
-from leaffit_usd.runtime.evaluator import BakedLeaves, vertex_normals
+from leaffit_usd.geometry.normals import vertex_normals
+from leaffit_usd.runtime.evaluator import BakedLeaves
 
 NPZ_FORMATS = (".npz",)
 USD_FORMATS = (".usda", ".usdc", ".usd")

@@ -31,7 +31,8 @@ import numpy as np
 
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.fit.mls import deform, mls_weights
-from leaffit_usd.splats.cloud import quat_to_matrix
+from leaffit_usd.geometry.normals import vertex_normals
+from leaffit_usd.geometry.quaternion import quat_to_matrix
 
 FRAMES = ("input", "asset")
 
@@ -107,25 +108,6 @@ def instance_matrices(positions: np.ndarray, orientations: np.ndarray,
     M[:, :3, 3] = pos
     M[:, 3, 3] = 1.0
     return M
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals. vertices (N, 3), faces (F, 3) -> (N, 3) float64.
-
-    Vertices used by no face (or only by degenerate ones) get (0, 0, 0).
-    """
-    import scipy.sparse as sp
-
-    v = np.asarray(vertices, np.float64).reshape(-1, 3)
-    f = np.asarray(faces, np.int64).reshape(-1, 3)
-    if not len(f):
-        return np.zeros((len(v), 3))
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])      # 2 * area * normal
-    inc = sp.csr_matrix((np.ones(f.size), (f.ravel(), np.repeat(np.arange(len(f)), 3))),
-                        shape=(len(v), len(f)))
-    n = inc @ fn
-    norm = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
 
 def sheet_offset(asset) -> float:

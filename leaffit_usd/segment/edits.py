@@ -242,7 +242,7 @@ def apply_edits(labels, cloud, edits: Edits, solver_factory=None, geodesics=None
     ops = to_cloud_operations(edits.operations, cloud)
     seg = ManualSegmenter(cloud.means, labels, edits.height, geodesics=geodesics,
                           n_samples=edits.n_samples, solver_factory=solver_factory,
-                          normals=gaussian_normals(cloud) if edits.normals else None)
+                          normals=flat_normals(cloud) if edits.normals else None)
     return seg.replay(ops)
 
 
@@ -265,7 +265,7 @@ def add_edits_argument(parser) -> None:
              "were recorded on a different input file)")
 
 
-def gaussian_normals(cloud) -> np.ndarray:
+def flat_normals(cloud) -> np.ndarray:
     """(N, 3) float64 normals, input frame: each Gaussian's smallest-scale axis, NaN where the
     Gaussian is not flat (the automatic segmentation's ``working_normals`` in the input frame)."""
     from leaffit_usd.segment.auto import working_normals

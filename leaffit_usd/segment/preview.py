@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from leaffit_usd.io_util import atomic_path
 from leaffit_usd.segment.result import Segmentation
 
 STEM = np.array([0.62, 0.62, 0.62])
@@ -82,17 +81,7 @@ def _marks(img, rows, cols, color, ring, r=5):
 
 
 def write_preview(path, points_working: np.ndarray, seg: Segmentation, size: int = 700) -> None:
-    """Render :func:`render_preview` and write it (PNG or any OpenImageIO format) atomically."""
-    import OpenImageIO as oiio
+    """Render :func:`render_preview` and write it (PNG, JPEG or EXR by suffix) atomically."""
+    from leaffit_usd.image_io import write_image
 
-    img = render_preview(points_working, seg, size)
-    data = (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
-    with atomic_path(path) as tmp:
-        spec = oiio.ImageSpec(data.shape[1], data.shape[0], 3, oiio.UINT8)
-        out = oiio.ImageOutput.create(str(path))
-        if out is None:
-            raise OSError(f"{path}: OpenImageIO cannot write this format ({oiio.geterror()})")
-        if not out.open(str(tmp), spec):
-            raise OSError(f"{path}: {out.geterror()}")
-        out.write_image(data)
-        out.close()
+    write_image(path, render_preview(points_working, seg, size))

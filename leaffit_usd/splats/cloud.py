@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from leaffit_usd.geometry.quaternion import quat_to_matrix
+
 log = logging.getLogger("leaffit_usd")
 
 SH_C0 = 0.28209479177387814  # Y_0^0; colour = SH_C0 * f_dc + 0.5
@@ -96,6 +98,12 @@ class GaussianCloud:
         """(N, 3, 3) float32; columns are the Gaussian's local axes in the input frame."""
         return quat_to_matrix(self.rotations)
 
+    def shortest_axes(self) -> np.ndarray:
+        """(N, 3) float32, input frame: each Gaussian's shortest axis (its surface normal when flat)."""
+        r = self.rotation_matrices()
+        k = np.argmin(self.log_scales, axis=1)
+        return np.ascontiguousarray(r[np.arange(len(self)), :, k])
+
     def covariances(self) -> np.ndarray:
         """(N, 3, 3) float32 covariance matrices, input frame: R diag(s^2) R^T."""
         r = self.rotation_matrices()
@@ -143,33 +151,6 @@ class GaussianCloud:
             sh=np.ascontiguousarray(sh, np.float32),
             extra=dict(extra or {}),
         )
-
-
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """(N, 4) unit quaternions (w, x, y, z) -> (N, 3, 3) rotation matrices (same dtype)."""
-    q = np.asarray(q)
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    m = np.empty((len(q), 3, 3), dtype=q.dtype)
-    m[:, 0, 0] = 1 - 2 * (y * y + z * z)
-    m[:, 0, 1] = 2 * (x * y - w * z)
-    m[:, 0, 2] = 2 * (x * z + w * y)
-    m[:, 1, 0] = 2 * (x * y + w * z)
-    m[:, 1, 1] = 1 - 2 * (x * x + z * z)
-    m[:, 1, 2] = 2 * (y * z - w * x)
-    m[:, 2, 0] = 2 * (x * z - w * y)
-    m[:, 2, 1] = 2 * (y * z + w * x)
-    m[:, 2, 2] = 1 - 2 * (x * x + y * y)
-    return m
-
-
-def matrix_to_quat(m: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) rotation matrices -> (N, 4) unit quaternions (w, x, y, z), w >= 0."""
-    from scipy.spatial.transform import Rotation
-
-    xyzw = Rotation.from_matrix(np.asarray(m, np.float64)).as_quat()
-    q = np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=1)
-    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
-    return q
 
 
 def drop_invalid(cloud: GaussianCloud, source: str, max_fraction: float = 0.5) -> GaussianCloud:

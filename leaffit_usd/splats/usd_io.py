@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from leaffit_usd.errors import InputFileError
+from leaffit_usd.geometry.quaternion import from_xyzw, to_xyzw
 from leaffit_usd.io_util import atomic_path
 from leaffit_usd.splats.cloud import REST_COUNTS, GaussianCloud, drop_invalid
 
@@ -166,7 +167,7 @@ def read_usd_splats(path: str | os.PathLike, prim: str | None = None, drop_bad: 
         quats = np.zeros((n, 4), np.float32)
         quats[:, 0] = 1.0
     else:
-        quats = np.ascontiguousarray(xyzw[:, [3, 0, 1, 2]])  # VtQuatfArray numpy = (x, y, z, w)
+        quats = from_xyzw(xyzw)  # VtQuatfArray numpy = (x, y, z, w)
     if scales is None:
         raise InputFileError(where, "splat prim has no 'scales'")
     if opac is None:
@@ -220,7 +221,7 @@ def read_usd_splats(path: str | os.PathLike, prim: str | None = None, drop_bad: 
         m = np.asarray(UsdGeom.Xformable(p).ComputeLocalToWorldTransform(Usd.TimeCode.Default()),
                        np.float64).T  # Gf matrices are row-vector convention
         if not np.allclose(m, np.eye(4), atol=0, rtol=0):
-            from leaffit_usd.splats.frame import transform_cloud
+            from leaffit_usd.splats.transform import transform_cloud
 
             cloud = transform_cloud(cloud, m, allow_affine=True)
     return drop_invalid(cloud, where) if drop_bad else cloud
@@ -285,7 +286,7 @@ def _author_splats(cloud, stage_path, prim, up_axis, meters_per_unit) -> None:
     stage.SetDefaultPrim(stage.GetPrimAtPath(Sdf.Path(prim).GetPrefixes()[0]))
     means = np.ascontiguousarray(cloud.means, np.float32)
     splat.CreatePositionsAttr().Set(Vt.Vec3fArray.FromNumpy(means))
-    xyzw = np.ascontiguousarray(cloud.rotations[:, [1, 2, 3, 0]], np.float32)  # ours w,x,y,z -> Vt x,y,z,w
+    xyzw = to_xyzw(np.asarray(cloud.rotations, np.float32))  # ours w,x,y,z -> Vt x,y,z,w
     splat.CreateOrientationsAttr().Set(Vt.QuatfArray.FromNumpy(xyzw))
     splat.CreateScalesAttr().Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(cloud.scales, np.float32)))
     splat.CreateOpacitiesAttr().Set(Vt.FloatArray.FromNumpy(np.ascontiguousarray(cloud.opacities)))

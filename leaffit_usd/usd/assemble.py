@@ -28,7 +28,7 @@ from leaffit_usd import __version__
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.fit.result import LeafFits
 from leaffit_usd.mesh.result import Stem, TemplateMesh
-from leaffit_usd.splats.cloud import matrix_to_quat
+from leaffit_usd.geometry.quaternion import matrix_to_quat
 from leaffit_usd.splats.frame import Frame
 from leaffit_usd.usd.asset import PlantAsset
 

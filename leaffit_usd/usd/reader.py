@@ -13,6 +13,7 @@ import numpy as np
 
 import leaffit_usd  # noqa: F401  (registers the schema)
 from leaffit_usd.errors import InputFileError
+from leaffit_usd.geometry.quaternion import from_xyzw
 from leaffit_usd.usd import schema as S
 from leaffit_usd.usd.asset import PlantAsset
 
@@ -137,7 +138,7 @@ def read_stage_object(stage, path="<stage>") -> PlantAsset:
     qf = inst.GetOrientationsfAttr().Get() if inst.GetOrientationsfAttr().HasAuthoredValue() else None
     q = qf if qf is not None and len(qf) == L else inst.GetOrientationsAttr().Get()
     xyzw = _np(q, np.float32, (4,)) if q is not None and len(q) else np.tile([0, 0, 0, 1], (L, 1))
-    orient = np.ascontiguousarray(np.concatenate([xyzw[:, 3:], xyzw[:, :3]], 1), np.float32)
+    orient = from_xyzw(np.asarray(xyzw, np.float32))
     scales_v = inst.GetScalesAttr().Get()
     scales = _np(scales_v, np.float32, (3,)) if scales_v is not None and len(scales_v) else np.ones((L, 3), np.float32)
     lab_pv = UsdGeom.PrimvarsAPI(inst_prim).GetPrimvar("leaffit:leafLabel")

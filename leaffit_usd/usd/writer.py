@@ -33,6 +33,7 @@ import numpy as np
 
 import leaffit_usd  # noqa: F401  (registers the schema before the registry is used)
 from leaffit_usd.errors import ParameterError
+from leaffit_usd.geometry.normals import vertex_normals
 from leaffit_usd.usd import schema as S
 from leaffit_usd.usd.asset import PlantAsset
 
@@ -203,29 +204,13 @@ def _check_asset(a: PlantAsset) -> None:
 
 
 def _write_texture(path: Path, img: np.ndarray, options: WriteOptions) -> None:
-    """Write an (H, W, 3|4) uint8 image with OpenImageIO, downsampled to texture_max_size."""
-    import OpenImageIO as oiio
+    """Write an (H, W, 3|4) uint8 texture, downsampled to texture_max_size (jpg drops alpha)."""
+    from leaffit_usd.image_io import write_image
 
-    img = np.ascontiguousarray(img)
+    img = np.asarray(img)
     if img.ndim != 3 or img.shape[2] not in (3, 4) or img.dtype != np.uint8:
         raise ParameterError("texture", "an (H, W, 3|4) uint8 image", f"{img.dtype} {img.shape}")
-    if options.texture_format == "jpg":
-        img = np.ascontiguousarray(img[:, :, :3])
-    buf = oiio.ImageBuf(img)
-    h, w = img.shape[:2]
-    m = int(options.texture_max_size)
-    if max(h, w) > m:
-        f = m / max(h, w)
-        roi = oiio.ROI(0, max(1, round(w * f)), 0, max(1, round(h * f)), 0, 1, 0, img.shape[2])
-        buf = oiio.ImageBufAlgo.resize(buf, roi=roi)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if options.texture_format == "jpg":
-        buf.specmod().attribute("Compression", f"jpeg:{int(options.jpeg_quality)}")
-    else:
-        buf.specmod().attribute("png:compressionLevel", 9)
-    buf.set_write_format(oiio.UINT8)
-    if not buf.write(str(path)):
-        raise OSError(f"cannot write texture {path}: {buf.geterror()}")
+    write_image(path, img, max_size=int(options.texture_max_size), jpeg_quality=int(options.jpeg_quality))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -328,10 +313,12 @@ def _bind_sides(stage, mesh, face_side: np.ndarray, looks: str | None):
 
 
 def _quat_arrays(q_wxyz: np.ndarray):
+    """(L, 4) (w, x, y, z) -> (Vt.QuathArray, Vt.QuatfArray) of the normalised quaternions."""
     from pxr import Vt
-    q = np.asarray(q_wxyz, np.float64)
-    q = q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-30)
-    xyzw = np.ascontiguousarray(np.concatenate([q[:, 1:], q[:, :1]], 1))
+
+    from leaffit_usd.geometry.quaternion import normalize, to_xyzw
+
+    xyzw = to_xyzw(normalize(q_wxyz))
     return (Vt.QuathArray.FromNumpy(xyzw.astype(np.float16)),
             Vt.QuatfArray.FromNumpy(xyzw.astype(np.float32)))
 
@@ -351,17 +338,6 @@ def drawn_template_points(a: PlantAsset) -> np.ndarray:
         np.asarray(a.template_points, np.float32)
 
 
-def _side_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(L, V, 3) unit area-weighted vertex normals of (L, V, 3) meshes sharing ``faces``."""
-    e1 = points[:, faces[:, 1]] - points[:, faces[:, 0]]
-    e2 = points[:, faces[:, 2]] - points[:, faces[:, 0]]
-    fn = np.cross(e1, e2)                                                    # (L, F, 3)
-    n = np.zeros_like(points)
-    for k in range(3):
-        np.add.at(n, (slice(None), faces[:, k]), fn)
-    return n / np.maximum(np.linalg.norm(n, axis=2, keepdims=True), 1e-30)
-
-
 def baked_leaves(a: PlantAsset) -> np.ndarray:
     """(L, V, 3) float64 leaves as written to the baked payload, asset frame: the deformer's
     output (:func:`_deformed_leaves`) with the two sheets pushed apart by sheet_offset * scale
@@ -371,7 +347,7 @@ def baked_leaves(a: PlantAsset) -> np.ndarray:
     off = sheet_offset(a)
     if off <= 0 or not len(leaves):
         return leaves
-    n = _side_normals(leaves, np.asarray(a.template_faces, np.int64))
+    n = vertex_normals(leaves, a.template_faces)
     s = np.asarray(a.scales, np.float64).mean(1)[:, None, None]
     return leaves + 0.5 * off * s * n
 

@@ -359,7 +359,7 @@ def build_session(cloud, labels, input_path, edits_out, labels_out, root_index=N
     up : (3,) plant up axis, input frame (default: from :func:`plant_frame`, with the height).
     """
     from leaffit_usd.io_util import file_sha256
-    from leaffit_usd.segment.edits import Edits, gaussian_normals, labels_sha256, plant_frame
+    from leaffit_usd.segment.edits import Edits, flat_normals, labels_sha256, plant_frame
     from leaffit_usd.segment.manual import N_SAMPLES, ManualSegmenter
     from leaffit_usd.segment.picking import GaussianBVH
 
@@ -377,7 +377,7 @@ def build_session(cloud, labels, input_path, edits_out, labels_out, root_index=N
                      base_leaves=int(labels.max(initial=0)), input_name=Path(input_path).name,
                      normals=normals)
     seg = ManualSegmenter(cloud.means, labels, height, n_samples=n_samples, solver_factory=solver_factory,
-                          normals=gaussian_normals(cloud) if normals else None)
+                          normals=flat_normals(cloud) if normals else None)
     t1 = time.perf_counter()
     pickable = cloud.opacities >= min_opacity if min_opacity > 0 else None
     bvh = GaussianBVH.from_cloud(cloud, pickable=pickable)

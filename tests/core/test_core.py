@@ -4,12 +4,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from leaffit_usd.errors import ParameterError, UserError
+from leaffit_usd.errors import ParameterError
 from leaffit_usd.geometry.sampling import _fps_numpy, farthest_point_sampling
 from leaffit_usd.io_util import atomic_path, atomic_write_bytes
 from leaffit_usd.segment.result import Segmentation
 from leaffit_usd.serialize import load_value, save_value
-from leaffit_usd.splats.frame import Frame, parse_up, rotation_to_z
+from leaffit_usd.splats.frame import Frame, rotation_to_z
 
 
 def test_atomic_path_leaves_nothing_on_failure(tmp_path):
@@ -76,14 +76,6 @@ def test_fps_bad_k_and_duplicates():
         farthest_point_sampling(np.zeros((5, 3)), 0)
     dup = np.zeros((10, 3))
     assert len(farthest_point_sampling(dup, 20)) == 1
-
-
-def test_parse_up():
-    np.testing.assert_allclose(parse_up("-y"), [0, -1, 0])
-    np.testing.assert_allclose(parse_up("0,0,2"), [0, 0, 1])
-    for bad in ("w", "0,0,0", "1,2", "nan,0,1"):
-        with pytest.raises(UserError):
-            parse_up(bad)
 
 
 @pytest.mark.parametrize("up", [(0, 0, 1), (0, 0, -1), (0, 1, 0), (0.3, -0.8, 0.1)])

@@ -6,7 +6,7 @@ import pytest
 
 from leaffit_usd.cli import main
 from leaffit_usd.edit.plant_io import load_plant
-from leaffit_usd.edit.texture import write_image
+from leaffit_usd.image_io import write_image
 from leaffit_usd.usd.validate import validate_file
 from leaffit_usd.usd.writer import LeafTextures, WriteOptions, write_stage
 from tests.edit.leaves import asset_from_sheet, sheet
@@ -38,7 +38,7 @@ def decal(tmp_path):
     img = np.zeros((8, 8, 4), np.float32)
     img[..., 0] = 1.0
     img[..., 3] = 1.0
-    write_image(img, tmp_path / "decal.png")
+    write_image(tmp_path / "decal.png", img)
     return tmp_path / "decal.png"
 
 

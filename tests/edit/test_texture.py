@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from leaffit_usd.edit.texture import (masked_fill, overlay_decal, read_image, replace_texture,
-                                      write_image)
+from leaffit_usd.edit.texture import masked_fill, overlay_decal, replace_texture
+from leaffit_usd.image_io import read_image, write_image
 from leaffit_usd.errors import UserError
 
 
@@ -88,7 +88,7 @@ def test_masked_fill_ignores_transparent_background(tex):
 
 
 def test_image_round_trip_and_errors(tmp_path, tex):
-    write_image(tex, tmp_path / "t.png")
+    write_image(tmp_path / "t.png", tex)
     back = read_image(tmp_path / "t.png")
     np.testing.assert_allclose(back, tex, atol=1 / 255)
     (tmp_path / "bad.png").write_bytes(b"not an image")

@@ -5,7 +5,7 @@ import pytest
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.segment.picking import (GaussianBVH, PickResult, ellipsoid_whitening, pick_brute_force,
                                          ray_ellipsoid_entry)
-from leaffit_usd.splats.cloud import quat_to_matrix
+from leaffit_usd.geometry.quaternion import quat_to_matrix
 
 
 def random_gaussians(n, seed=0, scale=0.01):

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from leaffit_usd.cli import main
-from leaffit_usd.runtime.bake import read_baked_usd, vertex_normals
+from leaffit_usd.geometry.normals import vertex_normals
+from leaffit_usd.runtime.bake import read_baked_usd
 from leaffit_usd.runtime.evaluator import evaluate
 from leaffit_usd.runtime.synthetic import synthetic_asset
 from leaffit_usd.usd.reader import read_stage

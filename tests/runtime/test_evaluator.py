@@ -214,7 +214,7 @@ def test_separated_sheets():
     assert np.allclose(np.median(gap, axis=1), expect[:, 0], rtol=0.05)
     assert sep.metadata["sheet_offset"] == off
     # the front sheet moved towards its outward normal (side of the front faces)
-    from leaffit_usd.runtime.evaluator import vertex_normals
+    from leaffit_usd.geometry.normals import vertex_normals
     n = vertex_normals(flat.reshape(-1, 3), sep.faces).reshape(L, V, 3)
     assert (np.einsum("lvc,lvc->lv", v[:, :half] - flat[:, :half], n[:, :half]) > 0).mean() > 0.95
     # the input frame gets the same push, mapped by asset_to_input

@@ -6,7 +6,8 @@ import pytest
 
 from leaffit_usd.cli import main
 from leaffit_usd.metrics import segmentation_scores
-from leaffit_usd.splats.cloud import GaussianCloud, matrix_to_quat
+from leaffit_usd.geometry.quaternion import matrix_to_quat
+from leaffit_usd.splats.cloud import GaussianCloud
 from leaffit_usd.splats.ply import write_ply
 
 from .synth import make_plant

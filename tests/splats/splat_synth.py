@@ -10,7 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from leaffit_usd.splats.cloud import GaussianCloud, matrix_to_quat
+from leaffit_usd.geometry.quaternion import matrix_to_quat
+from leaffit_usd.splats.cloud import GaussianCloud
 
 
 @dataclass
@@ -85,7 +86,7 @@ def make_plant(seed: int = 0, n_leaves: int = 7, per_leaf: int = 600, n_floaters
     cloud = GaussianCloud.from_activated(P, scales, q, rng.uniform(0.5, 0.99, n), colors=C, sh=sh)
     up, root, scale = np.array([0, 0, 1.0]), np.zeros(3), 1.0
     if rotate:
-        from leaffit_usd.splats.frame import transform_cloud
+        from leaffit_usd.splats.transform import transform_cloud
 
         rot = Rotation.random(random_state=seed + 1000).as_matrix()
         scale = float(rng.uniform(0.2, 5.0))

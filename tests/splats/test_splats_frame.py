@@ -4,8 +4,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from leaffit_usd.errors import ParameterError
-from leaffit_usd.splats.frame import (estimate_up, estimate_up_with_confidence, make_frame,
-                                      quat_multiply, resolve_root, transform_cloud)
+from leaffit_usd.commands._args import parse_root
+from leaffit_usd.splats.frame import make_frame
+from leaffit_usd.splats.root import resolve_root
+from leaffit_usd.splats.transform import transform_cloud
+from leaffit_usd.splats.up_axis import estimate_up, estimate_up_with_confidence
 from tests.splats.plyfiles import small_cloud
 from tests.splats.splat_synth import make_plant
 
@@ -25,14 +28,6 @@ def _angle(a, b):
 
 
 # ---- transform_cloud ---------------------------------------------------------------------------
-def test_quat_multiply_matches_scipy():
-    a, b = Rotation.random(5, random_state=1), Rotation.random(5, random_state=2)
-    wxyz = lambda r: np.roll(r.as_quat(), 1, axis=1)  # noqa: E731
-    got = quat_multiply(wxyz(a), wxyz(b))
-    want = wxyz(a * b)
-    assert np.allclose(np.abs(np.sum(got * want, 1)), 1.0)
-
-
 def test_transform_similarity_covariances_and_inverse():
     c = small_cloud(300, 2)
     m = _similarity(3)
@@ -116,7 +111,7 @@ def test_root_auto_ignores_floaters_below():
                         quats=np.concatenate([c.quats, np.repeat(c.quats[:1], n, 0)]),
                         opacity_logits=np.concatenate([c.opacity_logits, np.zeros(n, np.float32)]),
                         sh=np.concatenate([c.sh, np.repeat(c.sh[:1], n, 0)]))
-    i = resolve_root(big, "auto", None, sp.up)
+    i = resolve_root(big, None, None, sp.up)
     assert i < len(c)
     assert np.linalg.norm(big.means[i] - sp.root) < ROOT_TOL * sp.height
 
@@ -125,19 +120,19 @@ def test_root_point_and_index():
     sp = make_plant(5)
     c = sp.cloud
     target = c.means[123] + 1e-4
-    assert resolve_root(c, f"{target[0]},{target[1]},{target[2]}", None, sp.up) == 123
+    assert resolve_root(c, parse_root(f"{target[0]},{target[1]},{target[2]}"), None, sp.up) == 123
     with pytest.raises(ParameterError, match="near the plant"):
         far = sp.root + 2 * sp.height * sp.up
-        resolve_root(c, ",".join(map(str, far)), None, sp.up)
+        resolve_root(c, parse_root(",".join(map(str, far))), None, sp.up)
     for bad in ("1,2", "a,b,c", "1,2,nan"):
         with pytest.raises(ParameterError, match="--root"):
-            resolve_root(c, bad, None, sp.up)
+            resolve_root(c, parse_root(bad), None, sp.up)
     assert resolve_root(c, None, 17, sp.up) == 17
     for bad in (-1, len(c), 2.5):
         with pytest.raises(ParameterError, match="--root-index"):
             resolve_root(c, None, bad, sp.up)
     with pytest.raises(ParameterError, match="not both"):
-        resolve_root(c, "1,2,3", 4, sp.up)
+        resolve_root(c, parse_root("1,2,3"), 4, sp.up)
 
 
 def test_root_index_is_in_file_order_after_drops():
@@ -151,7 +146,7 @@ def test_root_index_is_in_file_order_after_drops():
 # ---- make_frame ----------------------------------------------------------------------------------
 def test_make_frame_normalises_plant():
     sp = make_plant(6, n_floaters=20)
-    fc = make_frame(sp.cloud, up=sp.up, root="auto")
+    fc = make_frame(sp.cloud, up=sp.up, root=None)
     f = fc.frame
     assert f.height == pytest.approx(sp.height, rel=0.05)
     w = f.to_working(sp.cloud.means)
@@ -160,14 +155,9 @@ def test_make_frame_normalises_plant():
     # working frame: the plant spans about [0, 1] in z (floaters aside)
     assert np.quantile(w[:, 2], 0.99) < 1.0 + 1e-6 and np.quantile(w[:, 2], 0.01) > -0.05
     np.testing.assert_allclose(f.to_input(w), sp.cloud.means, atol=1e-5 * sp.height)
-    # string up and estimated up give the same kind of result
+    # estimated up gives the same kind of result
     fc2 = make_frame(sp.cloud, up=None)
     assert _angle(fc2.frame.up, sp.up) < 30
     with pytest.raises(ParameterError):
         make_frame(sp.cloud, up="sideways")
 
-
-def test_resolve_root_three_argument_form():
-    """resolve_root(cloud, spec, up) (the TEAM.md form) works like the keyword form."""
-    sp = make_plant(5)
-    assert resolve_root(sp.cloud, "auto", sp.up) == resolve_root(sp.cloud, "auto", None, sp.up)

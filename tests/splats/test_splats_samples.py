@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from leaffit_usd.splats import load_cloud, read_ply, write_ply
-from leaffit_usd.splats.frame import estimate_up_with_confidence, gaussian_normals, resolve_root
+from leaffit_usd.splats.root import resolve_root
+from leaffit_usd.splats.up_axis import estimate_up_with_confidence
 from leaffit_usd.splats.usd_io import write_usd_splats
 
 PLANTS = sorted((Path(__file__).resolve().parents[2] / "samples" / "plants").glob("*.ply"))
@@ -32,9 +33,9 @@ def test_sample_up_and_root(path):
     cloud = load_cloud(path)
     gt = np.load(path.with_name(path.stem + ".gt.npz"))  # keys per samples/README.md
     up, root, height = gt["up"], gt["root"], float(gt["height"])
-    est = estimate_up_with_confidence(cloud.means, gaussian_normals(cloud))  # as make_frame does
+    est = estimate_up_with_confidence(cloud.means, cloud.shortest_axes())  # as make_frame does
     # 30 degrees: generated stems lean up to ~20 degrees from the true (gravity) up, and the
     # estimator follows the stem
     assert np.degrees(np.arccos(np.clip(est.up @ up, -1, 1))) < 30
-    ri = resolve_root(cloud, "auto", None, up)
+    ri = resolve_root(cloud, None, None, up)
     assert np.linalg.norm(cloud.means[ri] - root) < 0.05 * height

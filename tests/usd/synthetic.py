@@ -11,7 +11,7 @@ from scipy.spatial import Delaunay
 
 from leaffit_usd.fit.result import LeafFits
 from leaffit_usd.mesh.result import Stem, TemplateMesh
-from leaffit_usd.splats.cloud import quat_to_matrix
+from leaffit_usd.geometry.quaternion import quat_to_matrix
 from leaffit_usd.splats.frame import Frame
 
 

@@ -4,7 +4,8 @@ import pytest
 
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.fit.mls import deform, mls_weights
-from leaffit_usd.splats.cloud import quat_to_matrix
+from leaffit_usd.geometry.normals import vertex_normals
+from leaffit_usd.geometry.quaternion import quat_to_matrix
 from leaffit_usd.usd.assemble import asset_from_results, split_similarity, working_to_asset
 
 
@@ -92,7 +93,7 @@ def test_rest_sheets_coplanar_drawn_and_baked_sheets_apart(results, asset, tmp_p
     np.testing.assert_allclose(drawn[:V2, 2] - drawn[V2:, 2], off, rtol=1e-3)
     np.testing.assert_allclose(read_stage(tmp_path / "p.usda").template_points, asset.template_points, atol=1e-7)
     baked = W.baked_leaves(asset)
-    n = W._side_normals(baked, asset.template_faces.astype(np.int64))[:, :V2]
+    n = vertex_normals(baked, asset.template_faces)[:, :V2]
     sep = ((baked[:, :V2] - baked[:, V2:]) * n).sum(2) / asset.scales[:, :1]
     assert sep.min() > 0.9 * off and sep.max() < 1.1 * off
     assert asset.n_leaves == len(results[1].leaf_labels)

@@ -33,7 +33,7 @@ def main() -> int:
 
     import numpy as np
 
-    from leaffit_usd.splats.cloud import quat_to_matrix
+    from leaffit_usd.geometry.quaternion import quat_to_matrix
 
     a = read_stage(path)
     m = np.zeros((a.n_leaves, 4, 4))

@@ -1,0 +1,155 @@
+"""The root Gaussian of a plant capture: the bottom of the largest connected blob along up, or
+the Gaussian nearest a given point, or a given file index. Input frame throughout."""
+from __future__ import annotations
+
+import numpy as np
+
+from leaffit_usd.errors import ParameterError
+from leaffit_usd.splats.cloud import GaussianCloud
+from leaffit_usd.splats.up_axis import estimate_up
+
+_ROOT_SAMPLE = 60_000      # points used for the connected-component analysis of --root auto
+_ROOT_GRAPH_K = 10         # neighbours per sample in that analysis
+_ROOT_FAR = 0.10           # --root X,Y,Z must lie within this fraction of the plant size
+
+
+def plant_size(points: np.ndarray) -> float:
+    """Robust size of a capture: diagonal of the 0.5-99.5 percentile box, input units."""
+    p = np.asarray(points, np.float64)
+    lo, hi = np.quantile(p, [0.005, 0.995], axis=0)
+    return float(np.linalg.norm(hi - lo))
+
+
+class MainBlob:
+    """The largest connected blob of a capture (the plant without its floaters).
+
+    Connectivity is computed on a deterministic subsample (<= 60k points): each sample is linked
+    to its 10 nearest neighbours closer than 4x the median 4-NN spacing (O(n k) edges whatever
+    the density). A point belongs to the blob when its nearest sample does and is closer than
+    that radius. :meth:`contains` classifies any points; querying only the few points that
+    matter (the lowest, the highest) keeps a 1M-Gaussian capture fast.
+    """
+
+    def __init__(self, points: np.ndarray):
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+        from scipy.spatial import cKDTree
+
+        p = np.asarray(points, np.float64)
+        n = len(p)
+        self.trivial = n < 20
+        if self.trivial:
+            return
+        if n > _ROOT_SAMPLE:
+            sidx = np.sort(np.random.default_rng(0).choice(n, _ROOT_SAMPLE, replace=False))
+        else:
+            sidx = np.arange(n)
+        s = p[sidx]
+        self.tree = cKDTree(s)
+        d, nb = self.tree.query(s, k=min(_ROOT_GRAPH_K + 1, len(s)))
+        self.radius = 4.0 * float(np.median(d[:, min(4, d.shape[1] - 1)]))
+        if self.radius <= 0:
+            self.trivial = True
+            return
+        ok = d[:, 1:] <= self.radius
+        rows = np.repeat(np.arange(len(s)), d.shape[1] - 1)[ok.ravel()]
+        g = coo_matrix((np.ones(len(rows)), (rows, nb[:, 1:].ravel()[ok.ravel()])),
+                       shape=(len(s), len(s)))
+        _, lab = connected_components(g, directed=False)
+        self.sample_in = lab == np.bincount(lab).argmax()
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """(M, 3) input frame -> (M,) bool."""
+        q = np.asarray(points, np.float64).reshape(-1, 3)
+        if self.trivial:
+            return np.ones(len(q), bool)
+        d, near = self.tree.query(q, k=1)
+        return self.sample_in[near] & (d <= self.radius)
+
+    def extreme(self, points: np.ndarray, h: np.ndarray, lowest: bool, batch: int = 4096) -> int:
+        """Index of the lowest (or highest) point by ``h`` that belongs to the blob."""
+        key = h if lowest else -h
+        if len(key) > batch:  # usually the answer is among the first few: avoid a full sort
+            first = np.argpartition(key, batch)[:batch]
+            first = first[np.argsort(key[first], kind="stable")]
+            inside = np.flatnonzero(self.contains(points[first]))
+            if len(inside):
+                return int(first[inside[0]])
+        order = np.argsort(key, kind="stable")
+        for start in range(0, len(order), batch):
+            idx = order[start:start + batch]
+            inside = np.flatnonzero(self.contains(points[idx]))
+            if len(inside):
+                return int(idx[inside[0]])
+        return int(order[0])
+
+
+def height_range(points: np.ndarray, up: np.ndarray, blob: MainBlob) -> tuple[int, int, np.ndarray]:
+    """(index of the lowest, index of the highest point of the blob, (N,) heights ``points @ up``)."""
+    h = np.asarray(points, np.float64) @ up
+    return blob.extreme(points, h, True), blob.extreme(points, h, False), h
+
+
+def auto_root_index(points: np.ndarray, up: np.ndarray, blob: MainBlob | None = None) -> int:
+    """Index of the root Gaussian: the bottom of the plant along ``up``, robust to floaters.
+
+    points : (N, 3) input frame; up : (3,) input frame. Among the points of the largest
+    connected blob (:class:`MainBlob`), take those within 1 % of the plant's extent above its
+    lowest point and return the one nearest to their median (the middle of the stem's cut, not
+    a stray edge Gaussian).
+    """
+    p = np.asarray(points, np.float64)
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    blob = blob or MainBlob(p)
+    lo, hi, h = height_range(p, up, blob)
+    ext = float(h[hi] - h[lo])
+    cand = np.flatnonzero(h <= h[lo] + 0.01 * ext)
+    low = cand[blob.contains(p[cand])]
+    if len(low) == 0:
+        return lo
+    med = np.median(p[low], axis=0)
+    return int(low[np.argmin(np.linalg.norm(p[low] - med, axis=1))])
+
+
+def resolve_root(cloud: GaussianCloud, point: np.ndarray | None = None, root_index: int | None = None,
+                 up: np.ndarray | None = None, blob: MainBlob | None = None) -> int:
+    """The root Gaussian's index into ``cloud`` (0..len(cloud)-1) from one of three choices.
+
+    point : (3,) input frame: the Gaussian nearest to that point (what a click picks); an error
+        when the point is farther than 10 % of the plant size from every Gaussian.
+    root_index : a Gaussian's position in the input FILE (file order, the identity used
+        everywhere); an error when out of range or dropped at load. Exclusive with ``point``.
+    Neither: the lowest point along ``up`` (:func:`auto_root_index`; ``up`` (3,) input frame is
+        estimated when None).
+    Raises ParameterError (named after the CLI's --root / --root-index).
+    """
+    from scipy.spatial import cKDTree
+
+    if root_index is not None:
+        if point is not None:
+            raise ParameterError("--root-index", "either --root or --root-index, not both",
+                                 f"--root {point} --root-index {root_index}")
+        try:
+            i = int(root_index)
+        except (TypeError, ValueError):
+            raise ParameterError("--root-index", "an integer", root_index) from None
+        if i != root_index or not 0 <= i < cloud.file_count:
+            raise ParameterError("--root-index", f"an index in 0..{cloud.file_count - 1}", root_index)
+        pos = np.searchsorted(cloud.file_index, i)
+        if pos >= len(cloud) or cloud.file_index[pos] != i:
+            raise ParameterError("--root-index", "a Gaussian that was kept at load "
+                                 "(this one was dropped as invalid)", i)
+        return int(pos)
+    if point is None:
+        if up is None:
+            up = estimate_up(cloud.means, cloud.shortest_axes())
+        return auto_root_index(cloud.means, up, blob)
+    xyz = np.asarray(point, np.float64)
+    if xyz.shape != (3,) or not np.isfinite(xyz).all():
+        raise ParameterError("--root", "'auto' or a point X,Y,Z in the input frame", point)
+    d, i = cKDTree(cloud.means).query(xyz, k=1)
+    size = plant_size(cloud.means)
+    if d > _ROOT_FAR * size:
+        raise ParameterError("--root", f"a point near the plant (nearest Gaussian is {d:.4g} away, "
+                             f"more than 10% of the plant size {size:.4g})", ",".join(f"{c:g}" for c in xyz))
+    return int(i)
