@@ -86,10 +86,10 @@ def read_labels_file(path, cloud) -> tuple[np.ndarray, int | None]:
     return labels, root_cloud
 
 
-def automatic_labels(cloud, up=None, root=None, root_index=None):
+def automatic_labels(cloud, up="auto", root="auto", root_index=None):
     """(labels (N,) int32 cloud order, root index, Frame) from the automatic segmentation, as convert does.
 
-    up, root, root_index : as ``splats.frame.make_frame`` takes them (None = automatic).
+    up, root : the --up / --root strings ("auto", "+y", "X,Y,Z" ...); root_index : --root-index.
     """
     from leaffit_usd.pipeline import auto_segment
     from leaffit_usd.segment.auto import SegmentParams
@@ -98,7 +98,8 @@ def automatic_labels(cloud, up=None, root=None, root_index=None):
 
     from leaffit_usd.errors import UserError
 
-    choice = make_frame(cloud, up=up, root=root, root_index=root_index)  # bad --up/--root: an error
+    choice = make_frame(cloud, up=_args.parse_up(up), root=_args.parse_root(root),
+                        root_index=root_index)  # bad --up/--root: an error
     cw = transform_cloud(cloud, choice.frame.input_to_working)
     try:
         labels = np.asarray(auto_segment(cw, choice.root_index, SegmentParams()).labels, np.int32)
@@ -146,7 +147,7 @@ def run(args) -> int:
         log.info("edit: starting with every Gaussian unassigned")
     else:
         log.info("edit: automatic segmentation (as convert does; --empty to skip, --labels to reuse one)")
-        labels, root, frame = automatic_labels(cloud, **_args.frame_options(args))
+        labels, root, frame = automatic_labels(cloud, args.up, args.root, args.root_index)
     edits = load_edits(args.edits, inp) if args.edits else None
     stem = inp.name.rsplit(".", 1)[0]
     edits_out = Path(args.edits_out) if args.edits_out else inp.with_name(stem + ".edits.json")
