@@ -29,6 +29,7 @@ import numpy as np
 import leaffit_usd  # noqa: F401  (registers the schema)
 from leaffit_usd.errors import InputFileError, ParameterError, UserError
 from leaffit_usd.usd import schema as S
+from leaffit_usd.usd.vt import quat_arrays, vec3f_array
 
 
 @dataclass(frozen=True)
@@ -114,9 +115,9 @@ class Plant:
 
     def leaf_vertices(self, j: int | None = None, frame: str = "asset") -> np.ndarray:
         """Deformed leaf vertices: (V, 3) for leaf j, or (L, V, 3) for all; 'asset' or 'input' frame."""
-        from leaffit_usd.usd.writer import _deformed_leaves
+        from leaffit_usd.runtime.evaluator import asset_leaves
 
-        v = _deformed_leaves(self.asset)
+        v = asset_leaves(self.asset)
         if frame == "input":
             m = self.asset.asset_to_input
             v = v @ m[:3, :3].T + m[:3, 3]
@@ -135,8 +136,7 @@ class Plant:
         targets[j] = q
         attr = self._inst.GetAttribute(str(self._inst.GetAttribute(S.ATTR_TARGETS_PRIMVAR).Get()
                                            or S.TARGETS_PRIMVAR))
-        from leaffit_usd.usd.writer import _vec3f
-        attr.Set(_vec3f(targets))
+        attr.Set(vec3f_array(targets))
         self._changed()
 
     def set_control_point(self, j: int, k: int, xyz) -> None:
@@ -151,22 +151,20 @@ class Plant:
         """Change leaf j's rigid placement (asset frame; orientation (w, x, y, z); uniform scale)."""
         from pxr import UsdGeom
 
-        from leaffit_usd.usd.writer import _quat_arrays, _vec3f
-
         j = self._check_leaf(j)
         a = self.asset
         inst = UsdGeom.PointInstancer(self._inst)
         if position is not None:
             pos = a.positions.copy()
             pos[j] = np.asarray(position, np.float32).reshape(3)
-            inst.GetPositionsAttr().Set(_vec3f(pos))
+            inst.GetPositionsAttr().Set(vec3f_array(pos))
         if orientation is not None:
             q = a.orientations.copy()
             o = np.asarray(orientation, np.float64).reshape(4)
             if not np.isfinite(o).all() or np.linalg.norm(o) < 1e-12:
                 raise ParameterError("orientation", "a non-zero quaternion (w, x, y, z)", orientation)
             q[j] = o / np.linalg.norm(o)
-            qh, qf = _quat_arrays(q)
+            qh, qf = quat_arrays(q)
             inst.GetOrientationsAttr().Set(qh)
             inst.GetOrientationsfAttr().Set(qf)
         if scale is not None:
@@ -175,7 +173,7 @@ class Plant:
                 raise ParameterError("scale", "a positive number", scale)
             sc = a.scales.copy()
             sc[j] = s
-            inst.GetScalesAttr().Set(_vec3f(sc))
+            inst.GetScalesAttr().Set(vec3f_array(sc))
         self._changed()
 
     def set_texture(self, side: str, image) -> str:
@@ -222,19 +220,21 @@ class Plant:
 
     def save(self) -> Path:
         """Save the edits in place (.usda/.usdc) and refresh the baked-leaves payload."""
-        from leaffit_usd.usd.writer import _write_baked_layer
+        from leaffit_usd.runtime.evaluator import asset_leaves
+        from leaffit_usd.usd.writer import write_baked_layer
 
         self._check_writable()
         self.stage.GetRootLayer().Save()
         payload = self._baked_payload_path()
         if payload is not None and self._dirty_geometry:
-            _write_baked_layer(payload, self.asset)
+            write_baked_layer(payload, self.asset, asset_leaves(self.asset, separate_sheets=True))
         self._dirty_geometry = False
         return self.path
 
     def export(self, path, options=None):
         """Write the current plant as a new, complete asset (.usda/.usdc/.usdz) with
         ``usd.writer.write_stage`` (textures re-read from the current files). Returns WriteResult."""
+        from leaffit_usd.runtime.evaluator import asset_leaves
         from leaffit_usd.usd.reader import read_texture
         from leaffit_usd.usd.writer import LeafTextures, WriteOptions, write_stage
 
@@ -244,7 +244,7 @@ class Plant:
         if options is None:
             fmt = "png" if Path(a.front_texture).suffix.lower() == ".png" else "jpg"
             options = WriteOptions(texture_format=fmt, texture_max_size=16384)
-        return write_stage(path, a, textures, options)
+        return write_stage(path, a, textures, options, leaves=asset_leaves(a, separate_sheets=True))
 
     # ---- helpers ------------------------------------------------------------------------------
     def _baked_payload_path(self):

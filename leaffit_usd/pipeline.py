@@ -22,6 +22,7 @@ import numpy as np
 
 from leaffit_usd import __version__
 from leaffit_usd.errors import InputFileError, ParameterError
+from leaffit_usd.serialize import jsonable
 
 log = logging.getLogger("leaffit_usd")
 
@@ -181,6 +182,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     from leaffit_usd.splats.frame import make_frame
     from leaffit_usd.splats.transform import transform_cloud
     from leaffit_usd.usd.assemble import DEFAULT_SHEET_OFFSET, asset_from_results
+    from leaffit_usd.runtime.evaluator import asset_leaves
     from leaffit_usd.usd.writer import FORMATS, LeafTextures, WriteOptions, write_stage
 
     o = options or ConvertOptions()
@@ -263,7 +265,8 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         wopt = WriteOptions(texture_format=o.texture_format, texture_max_size=int(o.texture_size),
                             baked=o.baked)
         result = write_stage(output_path, asset,
-                             LeafTextures(template.front_texture, template.back_texture), wopt)
+                             LeafTextures(template.front_texture, template.back_texture), wopt,
+                             leaves=asset_leaves(asset, separate_sheets=True))
 
     in_bytes = input_path.stat().st_size
     out_bytes = output_path.stat().st_size
@@ -296,14 +299,10 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         },
         "frame": {**frame.to_dict(), "root_index": int(root_index)},
         "params": asset.metadata.get("params", {}),
-        "mesh_report": _jsonable(getattr(template, "report", {})),
+        "mesh_report": jsonable(getattr(template, "report", {})),
     }
     log.info("wrote %s (%d file(s), %.1f KB; input %.1f KB, ratio %.1fx) in %.1f s", output_path,
              len(result.files), all_bytes / 1024,
              in_bytes / 1024, report["sizes"]["compression_ratio"], report["timings"]["total"])
     return report
 
-
-def _jsonable(v):
-    from leaffit_usd.usd.assemble import _jsonable as j
-    return j(v)

@@ -2,11 +2,13 @@
 
 Each stage's result is a dataclass of numpy arrays and plain scalars; ``save_value`` writes its
 fields to one .npz (non-array fields JSON-encoded under ``__json__``), atomically.
+:func:`jsonable` turns parameters and reports into JSON-compatible values.
 """
 from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import PurePath
 
 import numpy as np
 
@@ -34,3 +36,22 @@ def load_value(cls, path):
         arrays = {k: z[k] for k in z.files if k != "__json__"}
     names = {f.name for f in dataclasses.fields(cls)}
     return cls(**{k: v for k, v in {**plain, **arrays}.items() if k in names})
+
+
+def jsonable(v):
+    """Parameters (dataclasses, numpy scalars/arrays, paths) -> JSON-compatible values."""
+    if dataclasses.is_dataclass(v) and not isinstance(v, type):
+        return jsonable(dataclasses.asdict(v))
+    if isinstance(v, dict):
+        return {str(k): jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [jsonable(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, PurePath):
+        return str(v)
+    if v is None or isinstance(v, (bool, int, float, str)):
+        return v
+    return repr(v)

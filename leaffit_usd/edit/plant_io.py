@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from leaffit_usd.image_io import read_image
 from leaffit_usd.errors import InputFileError, ParameterError
+from leaffit_usd.image_io import read_image
 from leaffit_usd.usd.asset import PlantAsset
 
 
@@ -63,6 +63,7 @@ def load_plant(path) -> EditablePlant:
 def save_plant(plant: EditablePlant, output, source=None, in_place: bool = False):
     """Write ``plant`` as a new stage at ``output`` (atomic). Refuses to overwrite ``source``
     unless ``in_place``. Returns the writer's WriteResult."""
+    from leaffit_usd.runtime.evaluator import asset_leaves
     from leaffit_usd.usd.writer import LeafTextures, WriteOptions, write_stage
 
     output = Path(output)
@@ -73,4 +74,5 @@ def save_plant(plant: EditablePlant, output, source=None, in_place: bool = False
     tex = LeafTextures(front=to8(plant.front), back=to8(plant.back))
     size = max(plant.front.shape[:2])
     return write_stage(output, plant.asset, tex, WriteOptions(texture_format=plant.texture_format,
-                                                              texture_max_size=max(16, size)))
+                                                              texture_max_size=max(16, size)),
+                       leaves=asset_leaves(plant.asset, separate_sheets=True))

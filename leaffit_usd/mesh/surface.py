@@ -122,7 +122,7 @@ def signed_area_xy(poly: np.ndarray) -> float:
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
 
-def _tri_min_angle(p: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def tri_min_angle(p: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(G,) smallest interior angle of each face, degrees."""
     a, b, c = p[faces[:, 0]], p[faces[:, 1]], p[faces[:, 2]]
     la, lb, lc = (np.linalg.norm(b - c, axis=1), np.linalg.norm(c - a, axis=1),
@@ -281,7 +281,7 @@ def _fix_nonmanifold_edges(points, faces):
             break
         fid = np.repeat(np.arange(len(faces)), 3)[bad]
         ek = inv[bad]
-        q = _tri_min_angle(points, faces)[fid]
+        q = tri_min_angle(points, faces)[fid]
         # per bad edge, the face with the smallest min-angle
         order = np.lexsort((q, ek))
         first = np.r_[True, ek[order][1:] != ek[order][:-1]]
@@ -296,7 +296,7 @@ def _remove_boundary_slivers(points, faces, min_angle=SLIVER_MIN_ANGLE_DEG):
     for _ in range(5):
         he, cnt = edge_face_counts(faces, n)
         on_boundary = (cnt.reshape(-1, 3) == 1).any(1)
-        sliver = on_boundary & (_tri_min_angle(points, faces) < min_angle)
+        sliver = on_boundary & (tri_min_angle(points, faces) < min_angle)
         if not sliver.any():
             break
         removed += int(sliver.sum())

@@ -499,7 +499,7 @@ def quality_report(mesh: TemplateMesh, cloud_working, fits, sheet, checks, tinfo
         stretch = l3 / np.maximum(l2, 1e-12)
         rep["uv_stretch_max"] = float(stretch.max())
         rep["uv_stretch_p99"] = float(np.percentile(stretch, 99))
-        ang = surf._tri_min_angle(P, F)
+        ang = surf.tri_min_angle(P, F)
         rep["min_angle_deg_p5"] = float(np.percentile(ang, 5))
     rep.update({k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in tinfo.items()})
     rep["texture_size"] = int(params.texture_size)

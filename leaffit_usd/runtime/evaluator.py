@@ -110,13 +110,6 @@ def instance_matrices(positions: np.ndarray, orientations: np.ndarray,
     return M
 
 
-def sheet_offset(asset) -> float:
-    """Front/back sheet separation recorded on the asset (``metadata["sheet_offset"]``, template
-    units; 0 when absent). The MLS rest sheets are coplanar; viewers that draw back faces need
-    them apart (see ``evaluate(separate_sheets=True)``)."""
-    return float((getattr(asset, "metadata", None) or {}).get("sheet_offset", 0.0) or 0.0)
-
-
 class LeafEvaluator:
     """Deforms one template for any number of instances; the MLS weights are computed once.
 
@@ -188,6 +181,29 @@ class LeafEvaluator:
         return np.asarray(out, dtype=out_dtype, order="C")
 
 
+def asset_leaves(asset, separate_sheets: bool = False,
+                 evaluator: LeafEvaluator | None = None) -> np.ndarray:
+    """(L, V, 3) float64 explicit leaves in the asset (stage) frame: positions + R (s * MLS(x)).
+
+    separate_sheets : False: the exact MLS image of the template, whose front and back sheets
+        coincide. True: each sheet pushed by sheet_offset/2 x the instance's mean |scale| along
+        its own deformed, area-weighted vertex normals (each sheet's normals come from its own
+        faces, so the back sheet moves to the back) -- the leaves of the stage's baked variant,
+        so viewers that draw back faces do not z-fight. No-op when the asset records no offset.
+    evaluator : a :class:`LeafEvaluator` already built for this asset's template.
+    """
+    ev = evaluator if evaluator is not None else LeafEvaluator.from_asset(asset)
+    M = instance_matrices(asset.positions, asset.orientations, asset.scales)
+    leaves = ev.evaluate(asset.targets, M)
+    offset = asset.sheet_offset if separate_sheets else 0.0
+    if offset <= 0 or not len(leaves):
+        return leaves
+    n = vertex_normals(leaves, asset.template_faces)
+    n[np.linalg.det(M[:, :3, :3]) < 0] *= -1.0       # a mirrored leaf's faces wind the other way
+    push = 0.5 * offset * np.abs(np.asarray(asset.scales, np.float64)).mean(1)
+    return leaves + push[:, None, None] * n
+
+
 def _asset_transforms(asset, frame: str) -> tuple[np.ndarray, np.ndarray]:
     """(L, 4, 4) instance -> asset frame, and the (4, 4) asset -> output frame matrix."""
     if frame not in FRAMES:
@@ -213,9 +229,8 @@ def evaluate(asset, frame: str = "input", dtype=np.float64,
     evaluator : a :class:`LeafEvaluator` already built for this asset's template (reuse it to
         skip the weights when only targets/transforms changed)
     separate_sheets : False (default): the exact MLS image of the template, whose front and back
-        sheets coincide. True: then push each sheet by sheet_offset/2 x the instance's scale along
-        its own deformed vertex normals (asset frame), as the stage's baked variant does, so
-        viewers that draw back faces do not z-fight. No-op when the asset records no offset.
+        sheets coincide. True: the sheets pushed apart as the stage's baked variant has them
+        (see :func:`asset_leaves`). No-op when the asset records no offset.
     Returns :class:`BakedLeaves`.
     """
     ev = evaluator if evaluator is not None else LeafEvaluator.from_asset(asset)
@@ -236,14 +251,9 @@ def evaluate(asset, frame: str = "input", dtype=np.float64,
         all_faces[mirrored] = all_faces[mirrored][:, :, ::-1]
     all_faces = all_faces.reshape(-1, 3)
 
-    offset = sheet_offset(asset) if separate_sheets else 0.0
+    offset = asset.sheet_offset if separate_sheets else 0.0
     if offset > 0 and L:
-        leaves = ev.evaluate(asset.targets, M_asset).reshape(L * V, 3)      # asset frame
-        asset_faces = all_faces
-        if np.linalg.det(to_out[:3, :3]) < 0:        # normals of the asset-frame winding
-            asset_faces = all_faces[:, ::-1]
-        push = 0.5 * offset * np.abs(np.asarray(asset.scales, np.float64)).mean(1)
-        leaves += np.repeat(push, V)[:, None] * vertex_normals(leaves, asset_faces)
+        leaves = asset_leaves(asset, True, ev).reshape(L * V, 3)
         verts = np.asarray(leaves @ to_out[:3, :3].T + to_out[:3, 3], dtype=dtype, order="C")
     else:
         M = np.einsum("ij,ljk->lik", to_out, M_asset)

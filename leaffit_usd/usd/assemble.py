@@ -27,8 +27,9 @@ import numpy as np
 from leaffit_usd import __version__
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.fit.result import LeafFits
-from leaffit_usd.mesh.result import Stem, TemplateMesh
 from leaffit_usd.geometry.quaternion import matrix_to_quat
+from leaffit_usd.mesh.result import Stem, TemplateMesh
+from leaffit_usd.serialize import jsonable
 from leaffit_usd.splats.frame import Frame
 from leaffit_usd.usd.asset import PlantAsset
 
@@ -90,13 +91,6 @@ def split_similarity(m: np.ndarray):
     return rot, s, m[:, :3, 3].copy()
 
 
-def offset_sheets(points: np.ndarray, normals: np.ndarray, offset: float) -> np.ndarray:
-    """Move every vertex by offset/2 along its own (unit) normal: (V, 3) float32."""
-    n = np.asarray(normals, np.float64)
-    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    return (np.asarray(points, np.float64) + 0.5 * offset * n).astype(np.float32)
-
-
 def asset_from_results(template: TemplateMesh, fits: LeafFits, stem: Stem | None, frame: Frame,
                        up_axis: str = "Y", meters_per_unit: float = 1.0,
                        height_m: float | None = None, sheet_offset: float = DEFAULT_SHEET_OFFSET,
@@ -153,10 +147,10 @@ def asset_from_results(template: TemplateMesh, fits: LeafFits, stem: Stem | None
         "template_label": int(fits.template_label),
         "fit_errors": np.asarray(fits.errors, np.float64).round(7).tolist(),
         "fit_fallback": np.asarray(fits.fallback, bool).tolist(),
-        "params": _jsonable(params or {"fit": fits.params}),
+        "params": jsonable(params or {"fit": fits.params}),
     }
     if extra_metadata:
-        metadata.update(_jsonable(extra_metadata))
+        metadata.update(jsonable(extra_metadata))
     return PlantAsset(
         template_points=tpl_points,
         template_faces=np.asarray(template.faces, np.int32),
@@ -176,25 +170,3 @@ def asset_from_results(template: TemplateMesh, fits: LeafFits, stem: Stem | None
         asset_to_input=asset_to_input,
         metadata=metadata,
     )
-
-
-def _jsonable(v):
-    """Parameters (dataclasses, numpy scalars/arrays, paths) -> JSON-compatible values."""
-    import dataclasses
-    from pathlib import PurePath
-
-    if dataclasses.is_dataclass(v) and not isinstance(v, type):
-        return _jsonable(dataclasses.asdict(v))
-    if isinstance(v, dict):
-        return {str(k): _jsonable(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_jsonable(x) for x in v]
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    if isinstance(v, np.generic):
-        return v.item()
-    if isinstance(v, PurePath):
-        return str(v)
-    if v is None or isinstance(v, (bool, int, float, str)):
-        return v
-    return repr(v)

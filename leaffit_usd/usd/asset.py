@@ -56,3 +56,30 @@ class PlantAsset:
     @property
     def n_leaves(self) -> int:
         return int(len(self.targets))
+
+    @property
+    def sheet_offset(self) -> float:
+        """Front/back sheet separation (template units; 0 = coplanar), ``metadata["sheet_offset"]``.
+
+        The MLS rest sheets (``template_points``) coincide; the stage draws the prototype with
+        each vertex moved by sheet_offset/2 along its own normal (:func:`offset_sheets`), and
+        explicit leaves push each sheet apart the same way (``runtime.evaluator.asset_leaves``).
+        """
+        return float((self.metadata or {}).get("sheet_offset", 0.0) or 0.0)
+
+    def drawn_template_points(self) -> np.ndarray:
+        """(V, 3) float32 prototype points as a stage draws them: the rest points moved by
+        sheet_offset/2 along their own unit normals (front up, back down)."""
+        off = self.sheet_offset
+        return offset_sheets(self.template_points, self.template_normals, off) if off > 0 else \
+            np.asarray(self.template_points, np.float32)
+
+
+def offset_sheets(points: np.ndarray, normals: np.ndarray, offset: float) -> np.ndarray:
+    """Move every vertex by offset/2 along its own (unit) normal: (V, 3) float32.
+
+    points, normals : (V, 3) template local frame; a negative offset undoes a positive one.
+    """
+    n = np.asarray(normals, np.float64)
+    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    return (np.asarray(points, np.float64) + 0.5 * offset * n).astype(np.float32)

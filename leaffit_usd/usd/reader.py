@@ -15,7 +15,7 @@ import leaffit_usd  # noqa: F401  (registers the schema)
 from leaffit_usd.errors import InputFileError
 from leaffit_usd.geometry.quaternion import from_xyzw
 from leaffit_usd.usd import schema as S
-from leaffit_usd.usd.asset import PlantAsset
+from leaffit_usd.usd.asset import PlantAsset, offset_sheets
 
 
 def open_stage(path, load_payloads: bool = False):
@@ -122,9 +122,7 @@ def read_stage_object(stage, path="<stage>") -> PlantAsset:
     # points (PlantAsset.template_points) are the coplanar sheets: undo the push
     off = float(_get(inst_prim, S.ATTR_SHEET_OFFSET, 0.0) or 0.0)
     if off > 0 and len(normals) == len(points):
-        n = normals.astype(np.float64)
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-        points = (points.astype(np.float64) - 0.5 * off * n).astype(np.float32)
+        points = offset_sheets(points, normals, -off)
     controls = _np(_get(inst_prim, S.ATTR_CONTROLS), np.float32, (3,))
     K = int(_get(inst_prim, S.ATTR_K, len(controls)))
     primvar_name = str(_get(inst_prim, S.ATTR_TARGETS_PRIMVAR, S.TARGETS_PRIMVAR))

@@ -33,9 +33,9 @@ import numpy as np
 
 import leaffit_usd  # noqa: F401  (registers the schema before the registry is used)
 from leaffit_usd.errors import ParameterError
-from leaffit_usd.geometry.normals import vertex_normals
 from leaffit_usd.usd import schema as S
 from leaffit_usd.usd.asset import PlantAsset
+from leaffit_usd.usd.vt import extent, matrix4d, quat_arrays, vec3f_array
 
 log = logging.getLogger("leaffit_usd")
 
@@ -93,11 +93,14 @@ class WriteResult:
 
 
 def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
-                options: WriteOptions | None = None) -> WriteResult:
+                options: WriteOptions | None = None, leaves: np.ndarray | None = None) -> WriteResult:
     """Write ``asset`` as a USD stage at ``path`` (.usda/.usdc/.usd/.usdz), atomically.
 
     textures : the front/back leaf images, or None (materials then use a constant green and no
         texture files are written; the asset's own texture paths are kept if set).
+    leaves : (L, V, 3) float, the explicit leaves in the asset frame with their sheets apart
+        (``runtime.evaluator.asset_leaves(asset, separate_sheets=True)``): the leaves' extent
+        and the baked payload. Required when the asset has leaves (this module only writes).
     For .usda/.usdc the textures go to ``textures/<name>.front.<ext>`` and the baked payload to
     ``<name>.baked.usdc`` beside the stage (relative paths); for .usdz all of them are packed.
     Returns a :class:`WriteResult`. Raises ParameterError for an unknown extension or option.
@@ -112,6 +115,7 @@ def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
     if not (16 <= int(options.texture_max_size) <= 16384):
         raise ParameterError("--texture-size", "an integer in 16..16384", options.texture_max_size)
     _check_asset(asset)
+    leaves = _check_leaves(asset, leaves)
 
     from pxr import Tf
 
@@ -134,11 +138,11 @@ def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
         want_baked = (ext != ".usdz") if options.baked == "auto" else bool(options.baked)
         baked_rel = f"{stem}.baked.usdc" if want_baked and asset.n_leaves else None
         if baked_rel:
-            _write_baked_layer(tmp / baked_rel, asset)
+            write_baked_layer(tmp / baked_rel, asset, leaves)
             rel["baked"] = baked_rel
         main_rel = f"{stem}.usdc" if ext == ".usdz" else path.name
         has_alpha = textures is not None and options.texture_format == "png"
-        _write_main_layer(tmp / main_rel, asset, name, front_tex, back_tex, has_alpha,
+        _write_main_layer(tmp / main_rel, asset, leaves, name, front_tex, back_tex, has_alpha,
                           "./" + baked_rel if baked_rel else None)
         result = WriteResult(path=path)
         if ext == ".usdz":
@@ -203,6 +207,19 @@ def _check_asset(a: PlantAsset) -> None:
 # textures
 
 
+def _check_leaves(a: PlantAsset, leaves) -> np.ndarray:
+    """The explicit leaves as a (L, V, 3) float32 array, or ParameterError."""
+    L, V = a.n_leaves, len(a.template_points)
+    if leaves is None and L == 0:
+        return np.zeros((0, V, 3), np.float32)
+    if leaves is None:
+        raise ParameterError("leaves", "the explicit leaves (runtime.evaluator.asset_leaves)", None)
+    arr = np.asarray(leaves)
+    if arr.shape != (L, V, 3) or not np.isfinite(arr).all():
+        raise ParameterError("leaves", f"a finite ({L}, {V}, 3) array", arr.shape)
+    return arr.astype(np.float32)
+
+
 def _write_texture(path: Path, img: np.ndarray, options: WriteOptions) -> None:
     """Write an (H, W, 3|4) uint8 texture, downsampled to texture_max_size (jpg drops alpha)."""
     from leaffit_usd.image_io import write_image
@@ -215,24 +232,6 @@ def _write_texture(path: Path, img: np.ndarray, options: WriteOptions) -> None:
 
 # ----------------------------------------------------------------------------------------------
 # main layer
-
-
-def _vec3f(a):
-    from pxr import Vt
-    return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(a, np.float32).reshape(-1, 3))
-
-
-def _matrix(m: np.ndarray):
-    from pxr import Gf
-    return Gf.Matrix4d(np.asarray(m, np.float64).T.tolist())
-
-
-def _extent(points: np.ndarray):
-    from pxr import Vt
-    p = np.asarray(points, np.float32).reshape(-1, 3)
-    if not len(p):
-        p = np.zeros((1, 3), np.float32)
-    return Vt.Vec3fArray.FromNumpy(np.stack([p.min(0), p.max(0)]))
 
 
 def make_material(stage, path: str, texture: str | None, color, has_alpha: bool = False):
@@ -280,12 +279,12 @@ def _author_template_mesh(stage, path: str, a: PlantAsset, looks: str):
     mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
     mesh.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
     mesh.CreateDoubleSidedAttr(False)
-    drawn = drawn_template_points(a)
-    mesh.CreatePointsAttr(_vec3f(drawn))
-    mesh.CreateExtentAttr(_extent(drawn))
+    drawn = a.drawn_template_points()
+    mesh.CreatePointsAttr(vec3f_array(drawn))
+    mesh.CreateExtentAttr(extent(drawn))
     mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(a.template_faces), 3, np.int32)))
     mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(a.template_faces, np.int32).ravel()))
-    mesh.CreateNormalsAttr(_vec3f(a.template_normals))
+    mesh.CreateNormalsAttr(vec3f_array(a.template_normals))
     mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
     pv = UsdGeom.PrimvarsAPI(mesh)
     st = pv.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
@@ -312,56 +311,7 @@ def _bind_sides(stage, mesh, face_side: np.ndarray, looks: str | None):
     UsdGeom.Subset.SetFamilyType(mesh, "materialBind", UsdGeom.Tokens.partition)
 
 
-def _quat_arrays(q_wxyz: np.ndarray):
-    """(L, 4) (w, x, y, z) -> (Vt.QuathArray, Vt.QuatfArray) of the normalised quaternions."""
-    from pxr import Vt
-
-    from leaffit_usd.geometry.quaternion import normalize, to_xyzw
-
-    xyzw = to_xyzw(normalize(q_wxyz))
-    return (Vt.QuathArray.FromNumpy(xyzw.astype(np.float16)),
-            Vt.QuatfArray.FromNumpy(xyzw.astype(np.float32)))
-
-
-def sheet_offset(a: PlantAsset) -> float:
-    """The front/back sheet separation (template units) recorded in the asset (0 if none)."""
-    return float((a.metadata or {}).get("sheet_offset", 0.0) or 0.0)
-
-
-def drawn_template_points(a: PlantAsset) -> np.ndarray:
-    """(V, 3) float32 prototype points as authored: the rest points, each moved by
-    sheet_offset/2 along its own unit normal (front up, back down). The reader inverts this."""
-    from leaffit_usd.usd.assemble import offset_sheets
-
-    off = sheet_offset(a)
-    return offset_sheets(a.template_points, a.template_normals, off) if off > 0 else \
-        np.asarray(a.template_points, np.float32)
-
-
-def baked_leaves(a: PlantAsset) -> np.ndarray:
-    """(L, V, 3) float64 leaves as written to the baked payload, asset frame: the deformer's
-    output (:func:`_deformed_leaves`) with the two sheets pushed apart by sheet_offset * scale
-    along each leaf's own deformed vertex normals (each sheet's normals come from its own faces,
-    so the back sheet moves to the back)."""
-    leaves = _deformed_leaves(a)
-    off = sheet_offset(a)
-    if off <= 0 or not len(leaves):
-        return leaves
-    n = vertex_normals(leaves, a.template_faces)
-    s = np.asarray(a.scales, np.float64).mean(1)[:, None, None]
-    return leaves + 0.5 * off * s * n
-
-
-def _deformed_leaves(a: PlantAsset) -> np.ndarray:
-    """(L, V, 3) float64 explicit leaves, asset frame: positions + R (s * MLS(x)), computed by the
-    one CPU evaluator (``runtime.evaluator``)."""
-    from leaffit_usd.runtime.evaluator import LeafEvaluator, instance_matrices
-
-    ev = LeafEvaluator.from_asset(a)
-    return ev.evaluate(a.targets, instance_matrices(a.positions, a.orientations, a.scales))
-
-
-def _write_main_layer(out: Path, a: PlantAsset, name: str, front_tex: str, back_tex: str,
+def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, front_tex: str, back_tex: str,
                       has_alpha: bool, baked_rel: str | None) -> None:
     from pxr import Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 
@@ -392,38 +342,37 @@ def _write_main_layer(out: Path, a: PlantAsset, name: str, front_tex: str, back_
     inst.CreatePrototypesRel().SetTargets([tmpl.GetPath()])
     L, K = a.n_leaves, len(a.template_controls)
     inst.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.zeros(L, np.int32)))
-    inst.CreatePositionsAttr(_vec3f(a.positions))
-    qh, qf = _quat_arrays(a.orientations) if L else (Vt.QuathArray(), Vt.QuatfArray())
+    inst.CreatePositionsAttr(vec3f_array(a.positions))
+    qh, qf = quat_arrays(a.orientations) if L else (Vt.QuathArray(), Vt.QuatfArray())
     inst.CreateOrientationsAttr(qh)     # quath: what Blender reads
     inst.CreateOrientationsfAttr(qf)    # float precision: preferred by USD when authored
-    inst.CreateScalesAttr(_vec3f(a.scales))
+    inst.CreateScalesAttr(vec3f_array(a.scales))
     inst.CreateIdsAttr(Vt.Int64Array.FromNumpy(np.asarray(a.leaf_labels, np.int64)))
     pv = UsdGeom.PrimvarsAPI(inst)
     tg = pv.CreatePrimvar("leaffit:targets", Sdf.ValueTypeNames.Float3Array, UsdGeom.Tokens.vertex, K)
-    tg.Set(_vec3f(a.targets))
+    tg.Set(vec3f_array(a.targets))
     lab = pv.CreatePrimvar("leaffit:leafLabel", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex)
     lab.Set(Vt.IntArray.FromNumpy(np.asarray(a.leaf_labels, np.int32)))
-    leaves = baked_leaves(a) if L else np.zeros((0, 3))
-    inst.CreateExtentAttr(_extent(leaves))
+    inst.CreateExtentAttr(extent(leaves))
     ip = inst.GetPrim()
     ip.SetCustomDataByKey("leaffit:role", "leaves")
     ip.ApplyAPI(S.API_NAME)
     ip.CreateRelationship(S.ATTR_TEMPLATE_REL, custom=False).SetTargets([tmpl.GetPath()])
-    _attr(ip, S.ATTR_CONTROLS, Sdf.ValueTypeNames.Point3fArray, _vec3f(a.template_controls))
+    _attr(ip, S.ATTR_CONTROLS, Sdf.ValueTypeNames.Point3fArray, vec3f_array(a.template_controls))
     _attr(ip, S.ATTR_K, Sdf.ValueTypeNames.Int, int(K))
     _attr(ip, S.ATTR_TARGETS_PRIMVAR, Sdf.ValueTypeNames.Token, S.TARGETS_PRIMVAR)
     _attr(ip, S.ATTR_VARIANT, Sdf.ValueTypeNames.Token, "affine", uniform=True)
     _attr(ip, S.ATTR_KERNEL, Sdf.ValueTypeNames.Token, "gaussian", uniform=True)
     _attr(ip, S.ATTR_SIGMA, Sdf.ValueTypeNames.Float, float(a.sigma))
     _attr(ip, S.ATTR_REG, Sdf.ValueTypeNames.Float, float(a.reg))
-    _attr(ip, S.ATTR_SHEET_OFFSET, Sdf.ValueTypeNames.Float, float(a.metadata.get("sheet_offset", 0.0)))
+    _attr(ip, S.ATTR_SHEET_OFFSET, Sdf.ValueTypeNames.Float, a.sheet_offset)
     _attr(ip, S.ATTR_VERSION, Sdf.ValueTypeNames.Int, S.DEFORMER_VERSION, uniform=True)
 
     if len(a.stem_points) and len(a.stem_faces):
         stem = UsdGeom.Mesh.Define(stage, f"{root}/Stem")
         stem.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-        stem.CreatePointsAttr(_vec3f(a.stem_points))
-        stem.CreateExtentAttr(_extent(a.stem_points))
+        stem.CreatePointsAttr(vec3f_array(a.stem_points))
+        stem.CreateExtentAttr(extent(a.stem_points))
         stem.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(a.stem_faces), 3, np.int32)))
         stem.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(a.stem_faces, np.int32).ravel()))
         UsdShade.MaterialBindingAPI.Apply(stem.GetPrim()).Bind(stem_mat)
@@ -468,7 +417,7 @@ def _custom_data(a: PlantAsset) -> dict:
     return {
         "toolVersion": str(md.get("tool_version", leaffit_usd.__version__)),
         "inputSha256": str(md.get("input_sha256", "")),
-        "assetToInput": _matrix(a.asset_to_input),
+        "assetToInput": matrix4d(a.asset_to_input),
         "params": _flat_params(params),
         "metadataJson": json.dumps(md, sort_keys=True, allow_nan=True),
     }
@@ -499,15 +448,16 @@ def _flat_params(params, prefix="") -> dict:
 # baked payload layer
 
 
-def _write_baked_layer(out: Path, a: PlantAsset) -> None:
-    """One Mesh per leaf (asset frame), sharing topology/UVs/subsets through an inherited class.
+def write_baked_layer(out: Path, a: PlantAsset, leaves: np.ndarray) -> None:
+    """The baked payload layer: one Mesh per leaf (asset frame), sharing topology/UVs/subsets
+    through an inherited class. leaves : (L, V, 3) as :func:`write_stage` takes them.
 
     The class prim sits under the payload's root prim so the inherit arc is remapped when the
     payload is loaded; material bindings are authored by the main layer's 'baked' variant.
     """
     from pxr import Sdf, Usd, UsdGeom, Vt
 
-    leaves = baked_leaves(a).astype(np.float32)
+    leaves = _check_leaves(a, leaves)
     stage = Usd.Stage.CreateNew(str(out))
     up = str(a.metadata.get("up_axis", "Y")).upper()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
@@ -528,8 +478,8 @@ def _write_baked_layer(out: Path, a: PlantAsset) -> None:
     for j in range(a.n_leaves):
         leaf = UsdGeom.Mesh.Define(stage, f"/BakedLeaves/leaf_{j:04d}")
         leaf.GetPrim().GetInherits().AddInherit(topo_path)
-        leaf.CreatePointsAttr(_vec3f(leaves[j]))
-        leaf.CreateExtentAttr(_extent(leaves[j]))
+        leaf.CreatePointsAttr(vec3f_array(leaves[j]))
+        leaf.CreateExtentAttr(extent(leaves[j]))
         leaf.GetPrim().SetCustomDataByKey("leaffit:leafLabel", int(a.leaf_labels[j]))
     stage.GetRootLayer().Save()
 

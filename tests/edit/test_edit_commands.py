@@ -7,6 +7,7 @@ import pytest
 from leaffit_usd.cli import main
 from leaffit_usd.edit.plant_io import load_plant
 from leaffit_usd.image_io import write_image
+from leaffit_usd.runtime.evaluator import asset_leaves
 from leaffit_usd.usd.validate import validate_file
 from leaffit_usd.usd.writer import LeafTextures, WriteOptions, write_stage
 from tests.edit.leaves import asset_from_sheet, sheet
@@ -18,7 +19,8 @@ def _stage(path, kind="ellipse", colour=(40, 140, 40), seed=0):
     img = np.zeros((64, 64, 4), np.uint8)
     img[..., :3] = colour
     img[..., 3] = 255
-    write_stage(path, asset, LeafTextures(img, img.copy()), WriteOptions(texture_format="png"))
+    write_stage(path, asset, LeafTextures(img, img.copy()), WriteOptions(texture_format="png"),
+                leaves=asset_leaves(asset, separate_sheets=True))
     return path
 
 

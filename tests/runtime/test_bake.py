@@ -8,6 +8,7 @@ from leaffit_usd.cli import main
 from leaffit_usd.geometry.normals import vertex_normals
 from leaffit_usd.runtime.bake import read_baked_usd
 from leaffit_usd.runtime.evaluator import evaluate
+from leaffit_usd.runtime.evaluator import asset_leaves
 from leaffit_usd.runtime.synthetic import synthetic_asset
 from leaffit_usd.usd.reader import read_stage
 from leaffit_usd.usd.writer import LeafTextures, write_stage
@@ -25,7 +26,7 @@ def plant(tmp_path_factory):
     path = d / "plant.usda"
     asset = synthetic_asset(n_leaves=5, n_vertices=300, seed=11)
     asset.metadata["sheet_offset"] = 3e-4          # as convert records it (template units)
-    write_stage(path, asset, _textures())
+    write_stage(path, asset, _textures(), leaves=asset_leaves(asset, separate_sheets=True))
     return path
 
 
@@ -103,7 +104,8 @@ def test_usdz_input_textures_resolve(tmp_path):
     from pxr import Usd, UsdShade
 
     src = tmp_path / "pkg" / "plant.usdz"
-    write_stage(src, synthetic_asset(n_leaves=2, n_vertices=200, seed=12), _textures())
+    asset = synthetic_asset(n_leaves=2, n_vertices=200, seed=12)
+    write_stage(src, asset, _textures(), leaves=asset_leaves(asset, separate_sheets=True))
     out = tmp_path / "out" / "baked.usdc"
     assert run_cli(src, "-o", out) == 0
     stage = Usd.Stage.Open(str(out))

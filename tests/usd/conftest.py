@@ -6,6 +6,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 import synthetic as syn  # noqa: E402
 
+from leaffit_usd.runtime.evaluator import asset_leaves  # noqa: E402
 from leaffit_usd.usd.assemble import asset_from_results  # noqa: E402
 from leaffit_usd.usd.writer import LeafTextures  # noqa: E402
 
@@ -35,5 +36,5 @@ def stage_path(tmp_path, asset, textures):
     from leaffit_usd.usd import writer as W
 
     out = tmp_path / "p.usda"
-    W.write_stage(out, asset, textures)
+    W.write_stage(out, asset, textures, leaves=asset_leaves(asset, separate_sheets=True))
     return out

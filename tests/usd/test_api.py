@@ -4,6 +4,7 @@ import pytest
 
 import leaffit_usd
 from leaffit_usd.errors import ParameterError, UserError
+from leaffit_usd.runtime.evaluator import asset_leaves
 from leaffit_usd.usd import writer as W
 from leaffit_usd.usd.reader import read_stage
 
@@ -14,11 +15,11 @@ def test_read_matches_asset(stage_path, asset):
     np.testing.assert_allclose(plant.control_points(2), asset.targets[2])
     leaf = plant.leaf(1)
     assert leaf.label == asset.leaf_labels[1]
-    np.testing.assert_allclose(plant.leaf_vertices(), W._deformed_leaves(asset), atol=1e-6)
+    np.testing.assert_allclose(plant.leaf_vertices(), asset_leaves(asset), atol=1e-6)
     # input frame: asset_to_input applied
     vin = plant.leaf_vertices(0, frame="input")
     m = asset.asset_to_input
-    np.testing.assert_allclose(vin, W._deformed_leaves(asset)[0] @ m[:3, :3].T + m[:3, 3], atol=1e-6)
+    np.testing.assert_allclose(vin, asset_leaves(asset)[0] @ m[:3, :3].T + m[:3, 3], atol=1e-6)
     with pytest.raises(ParameterError):
         plant.control_points(asset.n_leaves)
 
@@ -30,7 +31,7 @@ def test_edit_control_point_save_and_baked_refresh(stage_path, asset):
     q = plant.control_points(3)
     plant.set_control_point(3, 5, q[5] + [0.0, 0.0, 0.02])
     plant.set_leaf_transform(1, position=[1.0, 2.0, 3.0], scale=2.0)
-    before = W._deformed_leaves(asset)
+    before = asset_leaves(asset)
     after = plant.leaf_vertices()
     assert np.abs(after[3] - before[3]).max() > 1e-3          # leaf 3 moved ...
     np.testing.assert_allclose(after[0], before[0], atol=1e-6)  # ... leaf 0 did not
@@ -44,7 +45,7 @@ def test_edit_control_point_save_and_baked_refresh(stage_path, asset):
     root = stage.GetDefaultPrim()
     root.GetVariantSets().GetVariantSet("leafRepresentation").SetVariantSelection("baked")
     pts = np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath(f"{root.GetPath()}/BakedLeaves/leaf_0003")).GetPointsAttr().Get())
-    np.testing.assert_allclose(pts, W.baked_leaves(plant.asset)[3], atol=1e-5)
+    np.testing.assert_allclose(pts, asset_leaves(plant.asset, separate_sheets=True)[3], atol=1e-5)
 
 
 def test_swap_texture_and_export_usdz(stage_path, tmp_path):
@@ -67,7 +68,7 @@ def test_swap_texture_and_export_usdz(stage_path, tmp_path):
 
 def test_usdz_is_read_only(tmp_path, asset, textures):
     out = tmp_path / "p.usdz"
-    W.write_stage(out, asset, textures)
+    W.write_stage(out, asset, textures, leaves=asset_leaves(asset, separate_sheets=True))
     plant = leaffit_usd.open_plant(out)
     assert plant.n_leaves == asset.n_leaves
     with pytest.raises(UserError):

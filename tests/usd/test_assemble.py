@@ -6,6 +6,7 @@ from leaffit_usd.errors import ParameterError
 from leaffit_usd.fit.mls import deform, mls_weights
 from leaffit_usd.geometry.normals import vertex_normals
 from leaffit_usd.geometry.quaternion import quat_to_matrix
+from leaffit_usd.runtime.evaluator import asset_leaves
 from leaffit_usd.usd.assemble import asset_from_results, split_similarity, working_to_asset
 
 
@@ -87,12 +88,12 @@ def test_rest_sheets_coplanar_drawn_and_baked_sheets_apart(results, asset, tmp_p
     np.testing.assert_array_equal(asset.template_points[:V2], asset.template_points[V2:])
     off = asset.metadata["sheet_offset"]
     assert off > 0
-    W.write_stage(tmp_path / "p.usda", asset)
+    W.write_stage(tmp_path / "p.usda", asset, leaves=asset_leaves(asset, separate_sheets=True))
     stage = Usd.Stage.Open(str(tmp_path / "p.usda"))
     drawn = np.asarray(UsdGeom.Mesh(stage.GetPrimAtPath("/p/Leaves/Prototypes/TemplateLeaf")).GetPointsAttr().Get())
     np.testing.assert_allclose(drawn[:V2, 2] - drawn[V2:, 2], off, rtol=1e-3)
     np.testing.assert_allclose(read_stage(tmp_path / "p.usda").template_points, asset.template_points, atol=1e-7)
-    baked = W.baked_leaves(asset)
+    baked = asset_leaves(asset, separate_sheets=True)
     n = vertex_normals(baked, asset.template_faces)[:, :V2]
     sep = ((baked[:, :V2] - baked[:, V2:]) * n).sum(2) / asset.scales[:, :1]
     assert sep.min() > 0.9 * off and sep.max() < 1.1 * off

@@ -54,8 +54,8 @@ def test_convert_end_to_end_usdz(small_plant, tmp_path):
     v = validate_file(out)
     assert v.count("error") == 0, [str(f) for f in v.findings]
     # --height 0.5 with metersPerUnit 1: the plant is 0.5 units tall along +Y (default up axis)
-    from leaffit_usd.usd.writer import _deformed_leaves
-    ys = np.concatenate([_deformed_leaves(a).reshape(-1, 3)[:, 1], a.stem_points[:, 1]])
+    from leaffit_usd.runtime.evaluator import asset_leaves
+    ys = np.concatenate([asset_leaves(a).reshape(-1, 3)[:, 1], a.stem_points[:, 1]])
     assert 0.3 < ys.max() - min(ys.min(), 0) <= 0.6
 
 

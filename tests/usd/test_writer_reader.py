@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from leaffit_usd.errors import InputFileError, ParameterError
+from leaffit_usd.runtime.evaluator import asset_leaves
 from leaffit_usd.usd import writer as W
 from leaffit_usd.usd.reader import read_stage
 from leaffit_usd.usd.validate import validate_file
@@ -19,7 +20,8 @@ ARRAYS = ("template_points", "template_faces", "template_normals", "template_uvs
 @pytest.mark.parametrize("ext", ["usda", "usdc", "usdz"])
 def test_round_trip_and_usd_validation(tmp_path, asset, textures, ext):
     out = tmp_path / f"plant.{ext}"
-    res = W.write_stage(out, asset, textures, W.WriteOptions(baked=True))
+    res = W.write_stage(out, asset, textures, W.WriteOptions(baked=True),
+                        leaves=asset_leaves(asset, separate_sheets=True))
     assert out.is_file() and res.total_bytes > 0
     b = read_stage(out)
     for name in ARRAYS:
@@ -48,7 +50,7 @@ def test_layout_counts(tmp_path, asset, textures):
     from pxr import Usd, UsdGeom
 
     out = tmp_path / "p.usda"
-    W.write_stage(out, asset, textures)
+    W.write_stage(out, asset, textures, leaves=asset_leaves(asset, separate_sheets=True))
     stage = Usd.Stage.Open(str(out), Usd.Stage.LoadNone)
     root = stage.GetDefaultPrim()
     assert Usd.ModelAPI(root).GetKind() == "component"
@@ -70,15 +72,15 @@ def test_baked_variant_matches_deformer(tmp_path, asset, textures):
     from pxr import Usd, UsdGeom, UsdShade
 
     out = tmp_path / "p.usdc"
-    W.write_stage(out, asset, textures)
+    W.write_stage(out, asset, textures, leaves=asset_leaves(asset, separate_sheets=True))
     stage = Usd.Stage.Open(str(out))
     root = stage.GetDefaultPrim()
     vset = root.GetVariantSets().GetVariantSet("leafRepresentation")
     assert vset.GetVariantSelection() == "deformer"
     assert stage.GetPrimAtPath(f"{root.GetPath()}/BakedLeaves").IsValid() is False
     vset.SetVariantSelection("baked")
-    expect = W.baked_leaves(asset)
-    assert np.abs(expect - W._deformed_leaves(asset)).max() <= asset.metadata["sheet_offset"] * asset.scales.max()
+    expect = asset_leaves(asset, separate_sheets=True)
+    assert np.abs(expect - asset_leaves(asset)).max() <= asset.metadata["sheet_offset"] * asset.scales.max()
     for j in range(asset.n_leaves):
         leaf = stage.GetPrimAtPath(f"{root.GetPath()}/BakedLeaves/leaf_{j:04d}")
         np.testing.assert_allclose(np.asarray(UsdGeom.Mesh(leaf).GetPointsAttr().Get()), expect[j],
@@ -96,7 +98,8 @@ def test_failed_write_leaves_nothing(tmp_path, asset, textures, monkeypatch):
     monkeypatch.setattr(W, "_write_main_layer", boom)
     for ext in ("usda", "usdz"):
         with pytest.raises(RuntimeError):
-            W.write_stage(tmp_path / f"p.{ext}", asset, textures)
+            W.write_stage(tmp_path / f"p.{ext}", asset, textures,
+                          leaves=asset_leaves(asset, separate_sheets=True))
     assert list(tmp_path.iterdir()) == []
 
 
@@ -130,7 +133,8 @@ def test_png_textures_keep_alpha_and_downsample(tmp_path, asset, textures):
     import OpenImageIO as oiio
 
     big = W.LeafTextures(np.repeat(np.repeat(textures.front, 4, 0), 4, 1), textures.back)
-    W.write_stage(tmp_path / "p.usda", asset, big, W.WriteOptions(texture_format="png", texture_max_size=128))
+    W.write_stage(tmp_path / "p.usda", asset, big, W.WriteOptions(texture_format="png", texture_max_size=128),
+                  leaves=asset_leaves(asset, separate_sheets=True))
     spec = oiio.ImageInput.open(str(tmp_path / "textures" / "p.front.png")).spec()
     assert (spec.width, spec.height, spec.nchannels) == (128, 128, 4)
     assert "opacity" in (tmp_path / "p.usda").read_text()
@@ -139,7 +143,7 @@ def test_png_textures_keep_alpha_and_downsample(tmp_path, asset, textures):
 def test_plain_pxr_reads_every_value_without_the_plugin(tmp_path, asset, textures):
     """A reader that never imports leaffit_usd (no schema plug-in) still sees all authored values."""
     out = tmp_path / "p.usda"
-    W.write_stage(out, asset, textures)
+    W.write_stage(out, asset, textures, leaves=asset_leaves(asset, separate_sheets=True))
     code = (
         "import sys\nfrom pxr import Usd\n"
         "s = Usd.Stage.Open(sys.argv[1])\n"
@@ -158,7 +162,7 @@ def test_plain_pxr_reads_every_value_without_the_plugin(tmp_path, asset, texture
 
 
 def test_usdz_leaves_baked_payload_out_by_default(tmp_path, asset, textures):
-    W.write_stage(tmp_path / "p.usdz", asset, textures)
+    W.write_stage(tmp_path / "p.usdz", asset, textures, leaves=asset_leaves(asset, separate_sheets=True))
     names = zipfile.ZipFile(tmp_path / "p.usdz").namelist()
     assert "p.baked.usdc" not in names and len(names) == 3
     assert "leafRepresentation" not in (tmp_path / "p.usdz").read_bytes().decode("latin-1")
@@ -166,8 +170,10 @@ def test_usdz_leaves_baked_payload_out_by_default(tmp_path, asset, textures):
 
 
 def test_deterministic_bytes(tmp_path, asset, textures):
-    W.write_stage(tmp_path / "a" / "p.usdz", asset, textures)
-    W.write_stage(tmp_path / "b" / "p.usdz", asset, textures)
+    W.write_stage(tmp_path / "a" / "p.usdz", asset, textures,
+                  leaves=asset_leaves(asset, separate_sheets=True))
+    W.write_stage(tmp_path / "b" / "p.usdz", asset, textures,
+                  leaves=asset_leaves(asset, separate_sheets=True))
     assert (tmp_path / "a" / "p.usdz").read_bytes() == (tmp_path / "b" / "p.usdz").read_bytes()
 
 
@@ -177,7 +183,7 @@ def test_reader_and_validator_work_when_baked_is_the_saved_selection(tmp_path, a
     from pxr import Usd
 
     out = tmp_path / "p.usda"
-    W.write_stage(out, asset, textures)
+    W.write_stage(out, asset, textures, leaves=asset_leaves(asset, separate_sheets=True))
     stage = Usd.Stage.Open(str(out))
     root = stage.GetDefaultPrim()
     root.GetVariantSets().GetVariantSet("leafRepresentation").SetVariantSelection("baked")

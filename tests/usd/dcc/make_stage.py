@@ -22,13 +22,15 @@ def main() -> int:
     else:
         import synthetic as syn
 
+        from leaffit_usd.runtime.evaluator import asset_leaves
         from leaffit_usd.usd.assemble import asset_from_results
         from leaffit_usd.usd.writer import LeafTextures, write_stage
 
         t = syn.template_mesh(tex=256)
         asset = asset_from_results(t, syn.leaf_fits(t), syn.stem(), syn.frame(), up_axis="Y")
         path = HERE.parent.parent.parent / "build" / "dcc" / "plant.usda"
-        write_stage(path, asset, LeafTextures(t.front_texture, t.back_texture))
+        write_stage(path, asset, LeafTextures(t.front_texture, t.back_texture),
+                    leaves=asset_leaves(asset, separate_sheets=True))
     import json
 
     import numpy as np

@@ -1,0 +1,103 @@
+"""The import rule (docs/architecture.md): no package imports a higher layer, and no module
+uses another module's private (underscore) names. Read from the source, lazy imports included."""
+import ast
+from pathlib import Path
+
+import pytest
+
+PKG = Path(__file__).resolve().parents[1] / "leaffit_usd"
+
+# lowest first; a unit is a subpackage or a top-level module of leaffit_usd
+LAYERS = [
+    {"leaffit_usd", "errors", "io_util", "serialize", "image_io"},
+    {"splats", "geometry", "metrics"},
+    {"segment"},
+    {"fit"},
+    {"mesh"},
+    {"usd"},
+    {"runtime", "edit", "viewer"},
+    {"pipeline", "api"},
+    {"commands"},
+    {"cli", "demo", "__main__"},
+]
+LAYER = {u: i for i, units in enumerate(LAYERS) for u in units}
+
+
+def unit_of(module: str) -> str:
+    """'leaffit_usd.usd.writer' -> 'usd'; 'leaffit_usd' -> 'leaffit_usd'."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else "leaffit_usd"
+
+
+def imports(path: Path):
+    """(line, imported module, [imported names]) of every leaffit_usd import in the file."""
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0 \
+                and node.module.split(".")[0] == "leaffit_usd":
+            yield node.lineno, node.module, [a.name for a in node.names]
+        elif isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name.split(".")[0] == "leaffit_usd":
+                    yield node.lineno, a.name, []
+
+
+def sources():
+    for path in sorted(PKG.rglob("*.py")):
+        module = ".".join(path.relative_to(PKG.parent).with_suffix("").parts)
+        yield path, module.removesuffix(".__init__")
+
+
+def upward_imports(files):
+    bad = []
+    for path, module in files:
+        src = unit_of(module)
+        if module == "leaffit_usd":   # the package facade (lazy open_plant, schema registration)
+            continue
+        for line, target, names in imports(path):
+            dst = unit_of(target)
+            if dst == "leaffit_usd" and names:   # `from leaffit_usd import x`: x may be a unit
+                dst = names[0] if names[0] in LAYER else dst
+            if LAYER[dst] > LAYER[src]:
+                bad.append(f"{path.parent.name}/{path.name}:{line} {src} imports {target} ({dst})")
+    return bad
+
+
+def private_imports(files):
+    bad = []
+    for path, module in files:
+        for line, target, names in imports(path):
+            package = module.rsplit(".", 1)[0]
+            same_package = target == package or target.rsplit(".", 1)[0] == package
+            private = [n for n in names if n.startswith("_") and n != "__version__"]
+            # a private module (commands._args) may be used by its own package only
+            if any(p.startswith("_") and not p.startswith("__") for p in target.split(".")):
+                owner = target.split("._")[0]
+                if not module.startswith(owner + "."):
+                    bad.append(f"{path.parent.name}/{path.name}:{line} uses private module {target}")
+            if private and not same_package:
+                bad.append(f"{path.parent.name}/{path.name}:{line} imports {private} from {target}")
+    return bad
+
+
+def test_every_unit_has_a_layer():
+    units = {unit_of(m) for _, m in sources()}
+    assert units <= set(LAYER), sorted(units - set(LAYER))
+
+
+def test_no_package_imports_a_higher_layer():
+    assert upward_imports(sources()) == []
+
+
+def test_no_module_imports_another_modules_private_names():
+    assert private_imports(sources()) == []
+
+
+@pytest.mark.parametrize("line, kind", [("from leaffit_usd.pipeline import convert", "upward"),
+                                        ("from leaffit_usd.mesh.template import _x", "private")])
+def test_the_rule_catches_a_violation(tmp_path, line, kind):
+    """A lower layer (usd) importing a higher one (pipeline), or a private name, is reported."""
+    fake = tmp_path / "leaffit_usd" / "usd" / "fake.py"
+    fake.parent.mkdir(parents=True)
+    fake.write_text(f"def f():\n    {line}\n")
+    found = (upward_imports if kind == "upward" else private_imports)([(fake, "leaffit_usd.usd.fake")])
+    assert len(found) == 1, found
