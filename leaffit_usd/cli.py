@@ -24,6 +24,12 @@ log = logging.getLogger("leaffit_usd")
 class _Parser(argparse.ArgumentParser):
     """argparse that reports usage errors as one line and exit code 2."""
 
+    def parse_known_args(self, args=None, namespace=None):
+        from leaffit_usd.commands._args import join_dash_values
+
+        args = sys.argv[1:] if args is None else list(args)
+        return super().parse_known_args(join_dash_values(self, args), namespace)
+
     def error(self, message):  # noqa: D401 - argparse API
         sys.stderr.write(f"{self.prog}: error: {message} (see --help)\n")
         raise SystemExit(2)

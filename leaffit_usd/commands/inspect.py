@@ -33,8 +33,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("file", metavar="FILE", help="3DGS capture: .ply, .usd, .usda, .usdc or .usdz")
     parser.add_argument("--json", action="store_true", help="print a JSON object instead of a table")
     parser.add_argument("--up", default="auto", metavar="AXIS",
-                        help="up axis of the capture: auto (estimated, default), +x, z, X,Y,Z ...; "
-                             "write negative ones as --up=-y")
+                        help="up axis of the capture: auto (estimated, default), +x, -y, z, X,Y,Z "
+                             "(e.g. --up -0.1,-1,0)")
     parser.add_argument("--prim", default=None, metavar="PATH",
                         help="USD only: path of the splat prim when the stage holds several")
 
