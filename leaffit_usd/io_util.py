@@ -46,8 +46,18 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
 
 
 def file_sha256(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
-    """Hex SHA-256 of a file's bytes (identifies the input a result was made from)."""
+    """Hex SHA-256 of a file's bytes (identifies the input a result was made from).
+
+    A directory (an unbundled SOG capture) hashes each file's relative name and bytes, in sorted
+    order, so the same folder always gives the same digest.
+    """
     h = hashlib.sha256()
+    if os.path.isdir(path):
+        root = Path(path)
+        for p in sorted(q for q in root.rglob("*") if q.is_file()):
+            h.update(p.relative_to(root).as_posix().encode() + b"\0")
+            h.update(bytes.fromhex(file_sha256(p, chunk)))
+        return h.hexdigest()
     with open(path, "rb") as f:
         while block := f.read(chunk):
             h.update(block)

@@ -15,6 +15,7 @@ from leaffit_usd import __version__
 from leaffit_usd.cli import main
 from leaffit_usd.splats import write_ply
 from leaffit_usd.splats.usd_io import write_usd_splats
+from tests.splats.formatfiles import malformed_format_files
 from tests.splats.plyfiles import INRIA, inria_rows, raw_ply, small_cloud, write_ply_order
 
 REPO = Path(__file__).resolve().parents[1]
@@ -86,6 +87,7 @@ def _bad_files(d: Path) -> dict:
     body = txt[txt.index("def ParticleField3DGaussianSplat"):]
     two.write_text(txt + "\n" + body.replace('"Splats"', '"Splats2"', 1))
     files["usd_two_prims"] = (two, "choose one with --prim")
+    files.update(malformed_format_files(d))  # compressed PLY, SPZ, SOG, .splat
     return files
 
 
@@ -97,7 +99,10 @@ def bad_files(tmp_path_factory):
 CASES = ["truncated", "garbage", "wrong_header", "no_end_header", "many_nan", "empty_file",
          "zero_gaussians", "missing_fields", "zero_quaternions", "directory", "missing_file",
          "unknown_extension", "truncated_ascii", "bad_sh_count", "broken_usda", "garbage_usdc",
-         "usd_without_splats", "usd_two_prims"]
+         "usd_without_splats", "usd_two_prims",
+         "compressed_ply_truncated", "spz_truncated", "spz_v4_truncated", "spz_garbage",
+         "sog_truncated", "sog_missing_image", "sog_bad_meta", "splat_truncated", "splat_not_splat",
+         "splat_empty"]
 
 
 @pytest.mark.parametrize("case", CASES)
@@ -114,7 +119,8 @@ def test_malformed_input_exit_2_one_line(capsys, bad_files, case):
 
 def test_malformed_input_real_interpreter(bad_files):
     """Same contract through `python -m leaffit_usd` (no test harness in between)."""
-    for case in ("garbage", "truncated", "broken_usda", "garbage_usdc", "usd_two_prims"):
+    for case in ("garbage", "truncated", "broken_usda", "garbage_usdc", "usd_two_prims",
+                 "spz_garbage", "sog_truncated"):
         path, _ = bad_files[case]
         r = subprocess.run([sys.executable, "-m", "leaffit_usd", "inspect", str(path)],
                            capture_output=True, text=True, cwd=REPO, timeout=120)

@@ -29,7 +29,9 @@ def add_arguments(p) -> None:
     def _sigma(text):
         return "auto" if text.strip().lower() == "auto" else _pos_float(text)
 
-    p.add_argument("input", metavar="INPUT", help="3DGS capture: INRIA .ply or USD ParticleField3DGaussianSplat")
+    p.add_argument("input", metavar="INPUT",
+                   help="3DGS capture: INRIA .ply, .compressed.ply, .spz, .sog, .splat or USD "
+                        "ParticleField3DGaussianSplat (see README, input formats)")
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output stage (.usda, .usdc, .usd or .usdz)")
     p.add_argument("--report", metavar="R.json", help="write timings, counts, sizes and fit errors as JSON")
     add_frame_arguments(p)

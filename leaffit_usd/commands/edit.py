@@ -40,7 +40,7 @@ def add_arguments(p) -> None:
     from leaffit_usd.commands._args import add_frame_arguments
     from leaffit_usd.segment.manual import N_SAMPLES
 
-    p.add_argument("input", metavar="INPUT", help="3DGS capture (.ply or USD)")
+    p.add_argument("input", metavar="INPUT", help="3DGS capture (.ply, .compressed.ply, .spz, .sog, .splat or USD)")
     p.add_argument("--labels", metavar="LABELS.npz",
                    help="start from this segmentation (.npz with 'labels', file order); "
                         "default: the automatic segmentation")

@@ -13,12 +13,15 @@ from leaffit_usd.errors import ParameterError
 from leaffit_usd.splats.up_axis import LOW_UP_CONFIDENCE
 
 NAME = "inspect"
-HELP = "summarise a 3DGS capture (.ply or USD ParticleField3DGaussianSplat)"
+HELP = "summarise a 3DGS capture (.ply, .compressed.ply, .spz, .sog, .splat or USD)"
 DESCRIPTION = """\
 Summarise a 3DGS capture: Gaussian count (and how many invalid ones were dropped), SH degree,
 extra properties, bounds, estimated up axis (with a confidence) and plant height, memory size,
-opacity and scale statistics. Reads INRIA 3DGS PLY (binary or ASCII) and USD files holding a
-UsdVol.ParticleField3DGaussianSplat prim.
+opacity and scale statistics, and the file's format. Reads INRIA 3DGS PLY (binary or ASCII),
+compressed PLY (PlayCanvas/SuperSplat), SPZ (Niantic), SOG (PlayCanvas: .sog, or an unbundled
+meta.json or its folder), .splat (antimatter15) and USD files holding a
+UsdVol.ParticleField3DGaussianSplat prim. Compressed PLY, SPZ and SOG need the optional
+'formats' extra (pip install 'leaffit-usd[formats]').
 
 Examples:
   leaffit-usd inspect plant.ply
@@ -30,7 +33,9 @@ _MIN_ESTIMATE = 10  # Gaussians needed to estimate an up axis
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("file", metavar="FILE", help="3DGS capture: .ply, .usd, .usda, .usdc or .usdz")
+    parser.add_argument("file", metavar="FILE",
+                        help="3DGS capture: .ply, .compressed.ply, .spz, .sog (or meta.json), .splat, "
+                             ".usd, .usda, .usdc or .usdz")
     parser.add_argument("--json", action="store_true", help="print a JSON object instead of a table")
     parser.add_argument("--up", default="auto", metavar="AXIS",
                         help="up axis of the capture: auto (estimated, default), +x, -y, z, X,Y,Z "
@@ -52,13 +57,14 @@ def summarize(path: str | os.PathLike, prim: str | None = None, up: np.ndarray |
 
     up : (3,) unit vector, input frame, or None to estimate it.
 
-    Keys: file, format, file_bytes, gaussians, dropped, file_gaussians, sh_degree,
+    Keys: file, format (key of ``splats.FORMAT_NAMES``), format_name, file_bytes, gaussians,
+    dropped, file_gaussians, sh_degree,
     extra_properties {name: dtype}, bounds {min, max, size}, up {vector, source, confidence},
     root {index (file order), position}, height (input units, along up, above the root),
     memory_bytes, opacity {...}, scale {...} (largest axis, linear, input units),
     anisotropy {...} (largest / smallest scale).
     """
-    from leaffit_usd.splats import detect_format, load_cloud
+    from leaffit_usd.splats import FORMAT_NAMES, detect_format, load_cloud
     from leaffit_usd.splats.frame import make_frame
     from leaffit_usd.splats.up_axis import estimate_up_with_confidence
 
@@ -84,7 +90,8 @@ def summarize(path: str | os.PathLike, prim: str | None = None, up: np.ndarray |
     return {
         "file": str(path),
         "format": kind,
-        "file_bytes": path.stat().st_size,
+        "format_name": FORMAT_NAMES[kind],
+        "file_bytes": _size(path),
         "gaussians": len(cloud),
         "dropped": int(cloud.file_count - len(cloud)),
         "file_gaussians": int(cloud.file_count),
@@ -99,6 +106,13 @@ def summarize(path: str | os.PathLike, prim: str | None = None, up: np.ndarray |
         "scale": _stats(scales.max(1)),
         "anisotropy": _stats(scales.max(1) / np.maximum(scales.min(1), 1e-30)),
     }
+
+
+def _size(path: Path) -> int:
+    """Bytes of a file, or of all files in a folder (an unbundled SOG)."""
+    if path.is_dir():
+        return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+    return path.stat().st_size
 
 
 def _fmt_bytes(n: int) -> str:
@@ -124,7 +138,7 @@ def format_table(s: dict) -> str:
         ", low: check it or pass --up)" if up["confidence"] < LOW_UP_CONFIDENCE else ")")
     extras = ", ".join(f"{k}:{t}" for k, t in s["extra_properties"].items()) or "none"
     rows = [
-        ("file", f"{s['file']}  ({s['format'].upper()}, {_fmt_bytes(s['file_bytes'])})"),
+        ("file", f"{s['file']}  ({s['format_name']}, {_fmt_bytes(s['file_bytes'])})"),
         ("gaussians", f"{s['gaussians']:,}" + (f"  ({s['dropped']:,} invalid dropped of "
                                                  f"{s['file_gaussians']:,})" if s["dropped"] else "")),
         ("SH degree", f"{s['sh_degree']}  ({(s['sh_degree'] + 1) ** 2} coefficients per channel)"),

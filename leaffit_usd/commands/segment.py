@@ -44,7 +44,9 @@ def add_arguments(p) -> None:
     from leaffit_usd.commands._args import add_frame_arguments, add_segment_arguments, pos_int
     from leaffit_usd.segment.edits import add_edits_argument
 
-    p.add_argument("input", metavar="INPUT", help="3DGS capture: INRIA .ply or USD ParticleField3DGaussianSplat")
+    p.add_argument("input", metavar="INPUT",
+                   help="3DGS capture: INRIA .ply, .compressed.ply, .spz, .sog, .splat or USD "
+                        "ParticleField3DGaussianSplat (see README, input formats)")
     p.add_argument("-o", "--output", required=True, metavar="LABELS.npz", help="output labels file (.npz)")
     p.add_argument("--preview", metavar="SEG.png", help="also draw the segmentation (two orthographic views)")
     add_edits_argument(p)
