@@ -65,6 +65,7 @@ import torch
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import ConvexHull, cKDTree
 
+from leaffit_usd.determinism import deterministic
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.fit.denoise import DenoiseParams, denoise_leaf
 from leaffit_usd.fit.mls import DEFAULT_REG, DEFAULT_SIGMA, mls_weights
@@ -176,6 +177,7 @@ class _Leaf:
 # public entry point
 # ---------------------------------------------------------------------------------------------
 
+@deterministic   # one torch thread: the result must not depend on the thread count
 def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
                params: FitParams = FitParams()) -> LeafFits:
     """Register one template leaf to every leaf of a plant.

@@ -46,6 +46,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from leaffit_usd.determinism import deterministic_torch
 from leaffit_usd.errors import ParameterError
 
 ALPHA_MIN = 1.0 / 255.0      # 3DGS: contributions below are skipped
@@ -308,7 +309,7 @@ def render_orthographic_np(means, cov, colors, opacities, width: int, height: in
 
     Arguments as :func:`render_orthographic` but numpy arrays; returns float32 arrays.
     """
-    with torch.no_grad():
+    with torch.no_grad(), deterministic_torch():    # thread-count independent (determinism.py)
         t = lambda x: torch.as_tensor(np.ascontiguousarray(x, np.float32))  # noqa: E731
         r = render_orthographic(t(means), t(cov), t(colors), t(opacities), width, height, bounds,
                                 background=None if background is None else t(background),

@@ -1,0 +1,59 @@
+"""Byte-identical outputs: torch numerics whose result does not depend on the thread count.
+
+torch's CPU kernels split work between intra-op threads, and some splits change the order of
+floating-point additions: reductions with few outputs (``x.sum()``, a per-leaf sum over many
+pixels) accumulate one partial sum per thread, and the BLAS behind ``matmul`` / ``bmm`` /
+``einsum`` may split the inner (reduced) dimension between threads. The result then differs in
+the last bits with the number of threads, and 200 Adam steps amplify that into fit errors that
+differ in the third digit: the same capture converted by ``convert`` (all cores) and by
+``batch`` (one thread per job) would give different stages.
+
+The stages that compute with torch (the registration, the renderer behind the texture bake)
+therefore run under :func:`deterministic_torch`: one intra-op thread for the block (the caller's
+setting is restored after), so every reduction has one fixed order. The parallelism we give up
+is small (the fit's per-step tensors are small; measured in ``benchmarks/batch.py``' notes) and
+``leaffit-usd batch`` gets it back by converting several captures at once.
+Randomness is seeded explicitly where it exists (``FitParams.seed``, ``SegmentParams.seed``).
+"""
+from __future__ import annotations
+
+import contextlib
+import functools
+import threading
+
+_lock = threading.RLock()
+_depth = 0
+
+
+@contextlib.contextmanager
+def deterministic_torch():
+    """Run the block with one torch intra-op thread (restored after; re-entrant, thread-safe
+    with respect to other users of this context manager)."""
+    import torch
+
+    global _depth
+    with _lock:
+        outer = _depth == 0
+        if outer:
+            saved = torch.get_num_threads()
+            if saved != 1:
+                torch.set_num_threads(1)
+        _depth += 1
+    try:
+        yield
+    finally:
+        with _lock:
+            _depth -= 1
+            if outer and saved != 1:
+                torch.set_num_threads(saved)
+
+
+def deterministic(fn):
+    """Decorator: call ``fn`` under :func:`deterministic_torch`."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        with deterministic_torch():
+            return fn(*args, **kwargs)
+
+    return wrapper

@@ -1,0 +1,94 @@
+"""Byte-identical outputs (DESIGN: "a fixed seed gives byte-identical output").
+
+Two conversions of the same capture, one with 2 torch threads and one with 1 (``batch`` runs its
+jobs with fewer threads than ``convert`` uses), give the same bytes: the stage, the baked-leaves
+payload and both textures. The torch numerics run with one intra-op thread whatever the caller
+set (``leaffit_usd.determinism``): checked directly, since a small plant may not expose the
+thread-dependent summation order that 200 Adam steps on a real plant turn into different fits.
+"""
+import hashlib
+import importlib.util
+
+import numpy as np
+import pytest
+import torch
+
+from leaffit_usd.determinism import deterministic_torch
+
+needs_samples = pytest.mark.skipif(importlib.util.find_spec("samples.generate") is None,
+                                   reason="samples package missing")
+
+
+def _digests(folder):
+    return {p.relative_to(folder).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@needs_samples
+def test_two_conversions_identical_bytes_across_thread_counts(tmp_path):
+    from samples.generate import PlantSpec, make_plant, save_plant
+
+    from leaffit_usd.pipeline import ConvertOptions, convert
+
+    cloud, gt = make_plant(PlantSpec(kind="elliptic", leaves=3, gaussians=4000, holes=0.0,
+                                     floaters=0.0, height=0.5), seed=7)
+    ply, _ = save_plant(cloud, gt, tmp_path / "in", "plant")
+    opts = ConvertOptions(fit={"K": 12, "steps": 8, "refine": 2},
+                          segment={"n_samples": 1024, "n_neighbors": 128},
+                          mesh={"vertex_budget": 256, "texture_size": 128}, texture_size=128)
+    saved = torch.get_num_threads()
+    reports, digests = [], []
+    try:
+        for i, threads in enumerate((2, 1)):
+            torch.set_num_threads(threads)
+            out = tmp_path / f"run{i}"
+            reports.append(convert(ply, out / "plant.usda", opts))
+            digests.append(_digests(out))
+            assert torch.get_num_threads() == threads      # the caller's setting is restored
+    finally:
+        torch.set_num_threads(saved)
+    assert set(digests[0]) == {"plant.usda", "plant.baked.usdc", "textures/plant.front.jpg",
+                               "textures/plant.back.jpg"}
+    assert digests[0] == digests[1]
+    assert reports[0]["fit"]["per_leaf"] == reports[1]["fit"]["per_leaf"]
+    # and nothing of the run itself (times, folders) is in the stage
+    text = (tmp_path / "run0" / "plant.usda").read_text()
+    assert str(tmp_path) not in text and "run0" not in text
+
+
+def test_torch_numerics_run_single_threaded(monkeypatch):
+    """fit_leaves and the texture-bake renderer run with 1 torch thread whatever the caller set,
+    and give the caller's setting back."""
+    import leaffit_usd.fit.register as reg
+    from leaffit_usd.fit.synthetic import make_plant
+    from leaffit_usd.splats import render
+
+    seen = []
+    real = reg.render_orthographic
+
+    def spy(*a, **k):
+        seen.append(torch.get_num_threads())
+        return real(*a, **k)
+
+    monkeypatch.setattr(reg, "render_orthographic", spy)
+    plant = make_plant(n_leaves=3, n_gaussians=1500, seed=1)
+    saved = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        reg.fit_leaves(plant.cloud, plant.seg, reg.FitParams(K=8, steps=2, refine=0))
+        assert seen and set(seen) == {1}
+        assert torch.get_num_threads() == 2
+        seen.clear()
+        monkeypatch.setattr(render, "render_orthographic", spy)
+        rng = np.random.default_rng(0)
+        m = rng.normal(size=(50, 3))
+        cov = np.tile(np.eye(3) * 1e-3, (50, 1, 1))
+        render.render_orthographic_np(m, cov, np.ones((50, 3)), np.full(50, 0.8), 16, 16, (-2, 2, -2, 2))
+        assert seen == [1] and torch.get_num_threads() == 2
+        with deterministic_torch():
+            with deterministic_torch():                        # re-entrant
+                assert torch.get_num_threads() == 1
+            assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(saved)
