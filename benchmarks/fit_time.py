@@ -23,7 +23,8 @@ sys.path.insert(0, str(ROOT))
 
 def main(argv=None) -> int:
     from benchmarks.deformation import load_plant
-    from leaffit_usd.fit.register import FitParams, fit_leaves
+    from leaffit_usd.fit.params import FitParams
+    from leaffit_usd.fit.register import fit_leaves
     from samples import benchmark_suite
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])

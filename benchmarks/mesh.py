@@ -28,7 +28,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from leaffit_usd.fit.register import FitParams, fit_leaves  # noqa: E402
+from leaffit_usd.fit.params import FitParams  # noqa: E402
+from leaffit_usd.fit.register import fit_leaves  # noqa: E402
 from leaffit_usd.image_io import write_image  # noqa: E402
 from leaffit_usd.mesh.template import MeshParams, build_template_mesh, point_sheet_distance  # noqa: E402
 from leaffit_usd.segment.result import Segmentation  # noqa: E402

@@ -22,7 +22,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from leaffit_usd.io_util import atomic_write_bytes  # noqa: E402
+from leaffit_usd.fit.params import FitParams  # noqa: E402
 from leaffit_usd.pipeline import ConvertOptions, convert  # noqa: E402
+from leaffit_usd.usd.writer import WriteOptions  # noqa: E402
 
 PAPER_USDZ_BYTES = 1.13e6
 
@@ -46,8 +48,9 @@ def main(argv=None) -> int:
     for name in names:
         ply = plants_dir / f"{name}.ply"
         labels = plants_dir / f"{name}.gt.npz" if args.labels_gt else None
-        opts = ConvertOptions(labels=str(labels) if labels else None, texture_format=args.texture_format,
-                              baked=True, fit={"steps": args.steps} if args.steps is not None else {})
+        fit = FitParams() if args.steps is None else FitParams(steps=args.steps)
+        opts = ConvertOptions(labels=str(labels) if labels else None, fit=fit,
+                              write=WriteOptions(texture_format=args.texture_format, baked=True))
         t0 = time.perf_counter()
         rep = convert(ply, out_dir / name / f"{name}.usdz", opts)
         dt = time.perf_counter() - t0
@@ -58,7 +61,6 @@ def main(argv=None) -> int:
         # the same asset re-written (no re-fit): default .usdz (no baked payload) and .usda + sidecars
         from leaffit_usd.api import open_plant
         from leaffit_usd.usd.validate import validate_file
-        from leaffit_usd.usd.writer import WriteOptions
         plant = open_plant(out_dir / name / f"{name}.usdz")
         opt = WriteOptions(texture_format=args.texture_format, texture_max_size=16384)
         compact = plant.export(out_dir / name / "compact" / f"{name}.usdz", opt)

@@ -5,7 +5,7 @@
       -> fit_leaves -> build_template_mesh + build_stem
       -> asset_from_results (working -> asset frame) -> write_stage (atomic)
 
-Each stage is the function named in TEAM.md; this module only wires them, times them, logs
+Each stage is the package function named above; this module only wires them, times them, logs
 progress on stderr (logger ``leaffit_usd``) and returns a report (JSON-compatible dict: timings,
 counts, sizes, fit errors). Nothing is written unless every stage succeeded: the stage file and
 its sidecars are written atomically by ``usd.writer.write_stage`` as the last step.
@@ -22,7 +22,12 @@ import numpy as np
 
 from leaffit_usd import __version__
 from leaffit_usd.errors import InputFileError, ParameterError
+from leaffit_usd.fit.params import FitParams
+from leaffit_usd.mesh.stem import StemParams
+from leaffit_usd.mesh.template import MeshParams
+from leaffit_usd.segment.auto import SegmentParams
 from leaffit_usd.serialize import jsonable
+from leaffit_usd.usd.writer import WriteOptions
 
 log = logging.getLogger("leaffit_usd")
 
@@ -36,12 +41,12 @@ class ConvertOptions:
         root_index : a Gaussian's index in the input file
     labels : path of a segmentation .npz (``labels`` int32 per input Gaussian, file order) to use
         instead of the automatic segmentation; edits : an edits.json replayed on the labels
-    segment, fit, mesh, stem : overrides of ``SegmentParams``, ``FitParams``, ``MeshParams``,
-        ``StemParams`` fields (e.g. ``fit={"K": 16, "steps": 100}``)
+    segment, fit, mesh, stem : the stages' parameters (``SegmentParams``, ``FitParams``,
+        ``MeshParams``, ``StemParams``; e.g. ``fit=FitParams(K=16, steps=100)``)
+    write : how the stage is written (``WriteOptions``: texture format and size, baked payload)
     up_axis : the stage's up axis, "Y" or "Z"; meters_per_unit; height_m : real plant height
-    texture_format : "jpg" | "png"; texture_size : longest side of the written textures
-    baked : baked-leaves payload: "auto" (beside .usda/.usdc, not in .usdz), True or False
-    sheet_offset : front/back sheet separation, fraction of the template's extent
+    sheet_offset : front/back sheet separation, fraction of the template's extent (None: the
+        default ``usd.assemble.DEFAULT_SHEET_OFFSET``)
     """
 
     up: np.ndarray | None = None
@@ -49,29 +54,15 @@ class ConvertOptions:
     root_index: int | None = None
     labels: str | None = None
     edits: str | None = None
-    segment: dict = field(default_factory=dict)
-    fit: dict = field(default_factory=dict)
-    mesh: dict = field(default_factory=dict)
-    stem: dict = field(default_factory=dict)
+    segment: SegmentParams = field(default_factory=SegmentParams)
+    fit: FitParams = field(default_factory=FitParams)
+    mesh: MeshParams = field(default_factory=MeshParams)
+    stem: StemParams = field(default_factory=StemParams)
+    write: WriteOptions = field(default_factory=WriteOptions)
     up_axis: str = "Y"
     meters_per_unit: float = 1.0
     height_m: float | None = None
-    texture_format: str = "jpg"
-    texture_size: int = 1024
-    baked: bool | str = "auto"
     sheet_offset: float | None = None
-
-
-def _params(cls, overrides: dict, flag: str):
-    """Instantiate a parameter dataclass with overrides; unknown names are a ParameterError."""
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = set(overrides) - names
-    if unknown:
-        raise ParameterError(flag, f"parameters among {sorted(names)}", sorted(unknown))
-    p = cls(**overrides)
-    if hasattr(p, "validate"):
-        p.validate()
-    return p
 
 
 def _to_dict(p) -> dict:
@@ -183,7 +174,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     from leaffit_usd.splats.transform import transform_cloud
     from leaffit_usd.usd.assemble import DEFAULT_SHEET_OFFSET, asset_from_results
     from leaffit_usd.runtime.evaluator import asset_leaves
-    from leaffit_usd.usd.writer import FORMATS, LeafTextures, WriteOptions, write_stage
+    from leaffit_usd.usd.writer import FORMATS, LeafTextures, write_stage
 
     o = options or ConvertOptions()
     t_start = time.perf_counter()
@@ -192,8 +183,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         raise ParameterError("-o/--output", f"a path ending in {', '.join(FORMATS)}", str(output_path))
     if str(o.up_axis).upper() not in ("Y", "Z"):
         raise ParameterError("--up-axis", "Y or Z", o.up_axis)
-    if o.texture_format not in ("jpg", "png"):
-        raise ParameterError("--texture-format", "jpg or png", o.texture_format)
+    o.write.validate()
     if not (np.isfinite(o.meters_per_unit) and o.meters_per_unit > 0):
         raise ParameterError("--meters-per-unit", "a positive number", o.meters_per_unit)
     if o.height_m is not None and not (np.isfinite(o.height_m) and o.height_m > 0):
@@ -203,15 +193,13 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     if o.edits is not None and not Path(o.edits).is_file():
         raise InputFileError(o.edits, "no such file")
 
-    from leaffit_usd.fit.register import FitParams, fit_leaves
-    from leaffit_usd.mesh.stem import StemParams, build_stem
-    from leaffit_usd.mesh.template import MeshParams, build_template_mesh
+    from leaffit_usd.fit.register import fit_leaves
+    from leaffit_usd.mesh.stem import build_stem
+    from leaffit_usd.mesh.template import build_template_mesh
 
-    fit_p = _params(FitParams, o.fit, "fit parameters")
-    mesh_p = _params(MeshParams, o.mesh, "mesh parameters")
-    stem_p = _params(StemParams, o.stem, "stem parameters")
-    from leaffit_usd.segment.auto import SegmentParams
-    seg_p = _params(SegmentParams, o.segment, "segmentation parameters")
+    seg_p, fit_p, mesh_p, stem_p = o.segment, o.fit, o.mesh, o.stem
+    for p in (seg_p, fit_p, mesh_p, stem_p):
+        p.validate()
 
     T = _Timer(7)
     with T.stage("load", f"loading {input_path.name}"):
@@ -262,10 +250,8 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
             sheet_offset=DEFAULT_SHEET_OFFSET if o.sheet_offset is None else float(o.sheet_offset),
             input_sha256=sha, params=params,
             extra_metadata={"input_name": input_path.name})
-        wopt = WriteOptions(texture_format=o.texture_format, texture_max_size=int(o.texture_size),
-                            baked=o.baked)
         result = write_stage(output_path, asset,
-                             LeafTextures(template.front_texture, template.back_texture), wopt,
+                             LeafTextures(template.front_texture, template.back_texture), o.write,
                              leaves=asset_leaves(asset, separate_sheets=True))
 
     in_bytes = input_path.stat().st_size

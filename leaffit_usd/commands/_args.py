@@ -87,15 +87,29 @@ def join_dash_values(parser: argparse.ArgumentParser, args: list[str]) -> list[s
 SEGMENT_FIELDS = ("n_samples", "n_neighbors", "tau", "delta", "epsilon", "rho")
 
 
+def default(cls, name: str) -> str:
+    """The default of dataclass ``cls``'s field ``name``, as help text shows it (one source)."""
+    import dataclasses
+
+    f = {f.name: f for f in dataclasses.fields(cls)}[name]
+    v = f.default_factory() if f.default is dataclasses.MISSING else f.default
+    return f"{v:g}" if isinstance(v, float) else str(v)
+
+
 def add_segment_arguments(p, title="segmentation (paper defaults, working units: plant height 1)"):
-    """The automatic segmentation's parameters; read back with :func:`segment_overrides`."""
+    """The automatic segmentation's parameters; read back with :func:`segment_params`."""
+    from leaffit_usd.segment.auto import SegmentParams
+
+    def d(name):
+        return default(SegmentParams, name)
+
     g = p.add_argument_group(title)
-    g.add_argument("--n-samples", type=pos_int, help="N_s, farthest point samples (8192)")
-    g.add_argument("--n-neighbors", type=pos_int, help="N_k, neighbours of the apex test (512)")
-    g.add_argument("--tau", type=pos_float, help="tau, apex grouping margin (0.5)")
-    g.add_argument("--delta", type=pos_float, help="delta, iso-geodesic band width (0.01)")
-    g.add_argument("--epsilon", type=pos_float, help="epsilon, petiole diameter threshold (0.05)")
-    g.add_argument("--rho", type=float, help="rho, early protection ratio (0.25)")
+    g.add_argument("--n-samples", type=pos_int, help=f"N_s, farthest point samples ({d('n_samples')})")
+    g.add_argument("--n-neighbors", type=pos_int, help=f"N_k, neighbours of the apex test ({d('n_neighbors')})")
+    g.add_argument("--tau", type=pos_float, help=f"tau, apex grouping margin ({d('tau')})")
+    g.add_argument("--delta", type=pos_float, help=f"delta, iso-geodesic band width ({d('delta')})")
+    g.add_argument("--epsilon", type=pos_float, help=f"epsilon, petiole diameter threshold ({d('epsilon')})")
+    g.add_argument("--rho", type=float, help=f"rho, early protection ratio ({d('rho')})")
     g.add_argument("--orientation", action="store_true",
                    help="orientation-aware geodesics: no short-cut between a Gaussian and points off its "
                         "tangent plane (a leaf lying on another); off by default")
@@ -107,7 +121,15 @@ def add_segment_arguments(p, title="segmentation (paper defaults, working units:
     return g
 
 
-def segment_overrides(args) -> dict:
+def segment_params(args, **fields):
+    """The validated ``SegmentParams`` of the arguments :func:`add_segment_arguments` added
+    (``fields``: further overrides, e.g. seed)."""
+    from leaffit_usd.segment.auto import SegmentParams
+
+    return SegmentParams(**_segment_overrides(args), **fields).validate()
+
+
+def _segment_overrides(args) -> dict:
     """SegmentParams field overrides from the arguments :func:`add_segment_arguments` added."""
     kw = {k: getattr(args, k) for k in SEGMENT_FIELDS if getattr(args, k, None) is not None}
     if getattr(args, "orientation", False):

@@ -21,13 +21,17 @@ ORDER = 10
 
 
 def add_arguments(p) -> None:
-    from leaffit_usd.commands._args import add_frame_arguments, add_segment_arguments
-    from leaffit_usd.commands._args import pos_float as _pos_float
-    from leaffit_usd.commands._args import pos_int as _pos_int
+    from leaffit_usd.commands._args import add_frame_arguments, add_segment_arguments, default, pos_float, pos_int
+    from leaffit_usd.fit.params import FitParams
+    from leaffit_usd.mesh.template import MeshParams
     from leaffit_usd.segment.edits import add_edits_argument
+    from leaffit_usd.usd.writer import TEXTURE_FORMATS, WriteOptions
 
     def _sigma(text):
-        return "auto" if text.strip().lower() == "auto" else _pos_float(text)
+        return "auto" if text.strip().lower() == "auto" else pos_float(text)
+
+    def fit(name):
+        return default(FitParams, name)
 
     p.add_argument("input", metavar="INPUT",
                    help="3DGS capture: INRIA .ply, .compressed.ply, .spz, .sog, .splat or USD "
@@ -39,60 +43,66 @@ def add_arguments(p) -> None:
     g.add_argument("--labels", metavar="L.npz", help="reuse a segmentation: .npz with 'labels' (int per input Gaussian, file order, 0 = stem)")
     add_edits_argument(g)
     g = p.add_argument_group("fit (paper defaults, except sigma and the refinement: see --paper-fit)")
-    g.add_argument("--template", default=None, metavar="ID|auto", help="template leaf: auto (default) or a leaf label")
-    g.add_argument("-K", type=_pos_int, default=None, help="control points per leaf (32)")
-    g.add_argument("--steps", type=_pos_int, default=None, help="optimisation steps (200)")
-    g.add_argument("--lr", type=_pos_float, default=None, help="learning rate (7e-3)")
-    g.add_argument("--lam", type=float, default=None, help="Chamfer weight lambda (0.7)")
+    g.add_argument("--template", default=None, metavar="ID|auto",
+                   help=f"template leaf: auto or a leaf label ({fit('template')})")
+    g.add_argument("-K", type=pos_int, default=None, help=f"control points per leaf ({fit('K')})")
+    g.add_argument("--steps", type=pos_int, default=None, help=f"optimisation steps ({fit('steps')})")
+    g.add_argument("--lr", type=pos_float, default=None, help=f"learning rate ({fit('lr')})")
+    g.add_argument("--lam", type=float, default=None, help=f"Chamfer weight lambda ({fit('lam')})")
     g.add_argument("--sigma", type=_sigma, default=None, metavar="auto|S",
-                   help="MLS kernel width: auto = 0.7 x the template leaf's size (default), or "
-                        "working units (paper: 0.1)")
-    g.add_argument("--refine", type=_pos_int, default=None, metavar="N",
-                   help="Gauss-Newton refinement iterations after Adam (10; 0 = Adam only)")
+                   help=f"MLS kernel width: auto = {fit('sigma_relative')} x the template leaf's size "
+                        f"({fit('sigma')}), or working units (paper: {FitParams.paper().sigma:g})")
+    g.add_argument("--refine", type=pos_int, default=None, metavar="N",
+                   help=f"Gauss-Newton refinement iterations after Adam ({fit('refine')}; 0 = Adam only)")
     g.add_argument("--paper-fit", action="store_true",
                    help="the paper's registration exactly: sigma 0.1, no refinement")
     g.add_argument("--no-optimize", action="store_true", help="initial correspondence only (ablation)")
-    g.add_argument("--seed", type=_pos_int, default=None, help="random seed (0)")
+    g.add_argument("--seed", type=pos_int, default=None, help=f"random seed ({fit('seed')})")
     g = p.add_argument_group("mesh")
-    g.add_argument("--vertex-budget", type=_pos_int, default=None, help="template sheet vertices (2048)")
-    g.add_argument("--bake-size", type=_pos_int, default=None, help="resolution the textures are baked at (1024)")
+    g.add_argument("--vertex-budget", type=pos_int, default=None,
+                   help=f"template sheet vertices ({default(MeshParams, 'vertex_budget')})")
+    g.add_argument("--bake-size", type=pos_int, default=None,
+                   help=f"resolution the textures are baked at ({default(MeshParams, 'texture_size')})")
     g = p.add_argument_group("output")
-    g.add_argument("--up-axis", choices=["Y", "Z", "y", "z"], default="Y", help="the stage's upAxis (Y)")
-    g.add_argument("--meters-per-unit", type=_pos_float, default=1.0, help="the stage's metersPerUnit (1)")
-    g.add_argument("--height", type=_pos_float, default=None, metavar="M",
+    g.add_argument("--up-axis", choices=["Y", "Z", "y", "z"], default="Y", help="the stage's upAxis (%(default)s)")
+    g.add_argument("--meters-per-unit", type=pos_float, default=1.0, help="the stage's metersPerUnit (%(default)g)")
+    g.add_argument("--height", type=pos_float, default=None, metavar="M",
                    help="real plant height in metres (default: keep the capture's units)")
-    g.add_argument("--texture-format", choices=["jpg", "png"], default="jpg",
-                   help="jpg (compact, default) or png (keeps alpha)")
-    g.add_argument("--texture-size", type=_pos_int, default=1024, help="longest side of the written textures (1024)")
+    g.add_argument("--texture-format", choices=TEXTURE_FORMATS, default=WriteOptions.texture_format,
+                   help="jpg (compact) or png (keeps alpha) (%(default)s)")
+    g.add_argument("--texture-size", type=pos_int, default=WriteOptions.texture_max_size,
+                   help="longest side of the written textures (%(default)s)")
     g.add_argument("--baked", choices=["auto", "yes", "no"], default="auto",
                    help="baked-leaves payload (variant leafRepresentation=baked) for tools without the "
                         "deformer: auto = beside .usda/.usdc, not packed into .usdz (default)")
 
 
 def options_from_args(args):
+    """The typed :class:`leaffit_usd.pipeline.ConvertOptions` of a parsed command line."""
+    from dataclasses import replace
+
+    from leaffit_usd.commands._args import frame_options, segment_params
+    from leaffit_usd.fit.params import FitParams
+    from leaffit_usd.mesh.template import MeshParams
     from leaffit_usd.pipeline import ConvertOptions
+    from leaffit_usd.usd.writer import WriteOptions
 
-    from leaffit_usd.commands._args import frame_options, segment_overrides
-
-    seg = segment_overrides(args)
-    from leaffit_usd.fit.register import PAPER_FIT
-
-    fit = dict(PAPER_FIT) if args.paper_fit else {}
-    fit.update({k: v for k, v in (("K", args.K), ("steps", args.steps), ("lr", args.lr),
-                                  ("lam", args.lam), ("sigma", args.sigma), ("refine", args.refine),
-                                  ("seed", args.seed)) if v is not None})
+    given = lambda **kw: {k: v for k, v in kw.items() if v is not None}  # noqa: E731
+    fit = given(K=args.K, steps=args.steps, lr=args.lr, lam=args.lam, sigma=args.sigma,
+                refine=args.refine, seed=args.seed)
     if args.template is not None:
         t = str(args.template).strip()
         fit["template"] = int(t) if t.isdigit() else t
     if args.no_optimize:
         fit["optimize"] = False
-    mesh = {k: v for k, v in (("vertex_budget", args.vertex_budget), ("texture_size", args.bake_size))
-            if v is not None}
     return ConvertOptions(
         **frame_options(args), labels=args.labels, edits=args.edits,
-        segment=seg, fit=fit, mesh=mesh, up_axis=args.up_axis.upper(),
-        meters_per_unit=args.meters_per_unit, height_m=args.height,
-        texture_format=args.texture_format, texture_size=args.texture_size, baked={"auto": "auto", "yes": True, "no": False}[args.baked])
+        segment=segment_params(args),
+        fit=replace(FitParams.paper() if args.paper_fit else FitParams(), **fit),
+        mesh=MeshParams(**given(vertex_budget=args.vertex_budget, texture_size=args.bake_size)),
+        write=WriteOptions(texture_format=args.texture_format, texture_max_size=args.texture_size,
+                           baked={"auto": "auto", "yes": True, "no": False}[args.baked]),
+        up_axis=args.up_axis.upper(), meters_per_unit=args.meters_per_unit, height_m=args.height)
 
 
 def run(args) -> int:

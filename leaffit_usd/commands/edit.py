@@ -49,12 +49,12 @@ def add_arguments(p) -> None:
                    help="continue a session: replay these edits first (they can be undone)")
     p.add_argument("--edits-out", metavar="PATH", help="where Save writes the edits (default: INPUT stem + .edits.json)")
     p.add_argument("--labels-out", metavar="PATH", help="where Save writes the labels (default: INPUT stem + .labels.npz)")
-    p.add_argument("--port", type=int, default=0, help="TCP port on 127.0.0.1 (default 0: a free port)")
+    p.add_argument("--port", type=int, default=0, help="TCP port on 127.0.0.1 (default %(default)s: a free port)")
     p.add_argument("--no-browser", action="store_true", help="print the URL only, do not open a browser")
     p.add_argument("--samples", type=int, default=N_SAMPLES,
                    help=f"geodesic subsample size N_s (default {N_SAMPLES}, the paper's)")
     p.add_argument("--min-opacity", type=float, default=0.0,
-                   help="Gaussians less opaque than this cannot be picked (default 0: all)")
+                   help="Gaussians less opaque than this cannot be picked (default %(default)g: all)")
     add_frame_arguments(p)  # for the automatic segmentation the session starts from (as in convert)
 
 

@@ -39,9 +39,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--source-apex", metavar="X,Y,Z",
                         help="single-leaf capture only: the leaf tip; default: detected")
     parser.add_argument("--cage-points", type=int, default=32,
-                        help="cage vertices per leaf side (default 32)")
+                        help="cage vertices per leaf side (default %(default)s)")
     parser.add_argument("--samples", type=int, default=512,
-                        help="interior correspondences (default 512)")
+                        help="interior correspondences (default %(default)s)")
     parser.add_argument("--report", help="write per-instance silhouette IoU etc. as JSON")
 
 

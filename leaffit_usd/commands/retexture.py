@@ -38,12 +38,12 @@ def add_arguments(parser) -> None:
     op.add_argument("--decal", help="overlay this image (with alpha) at --uv")
     op.add_argument("--fill-mask", help="repaint the white region of this mask image")
     parser.add_argument("--side", choices=("front", "back", "both"), default="front",
-                        help="which texture to edit (default: front)")
-    parser.add_argument("--uv", default="0.5,0.5", help="decal centre U,V in [0,1] (default 0.5,0.5)")
+                        help="which texture to edit (default: %(default)s)")
+    parser.add_argument("--uv", default="0.5,0.5", help="decal centre U,V in [0,1] (default %(default)s)")
     parser.add_argument("--scale", type=float, default=0.25,
-                        help="decal width as a fraction of the texture width (default 0.25)")
+                        help="decal width as a fraction of the texture width (default %(default)g)")
     parser.add_argument("--rotation", type=float, default=0.0,
-                        help="decal rotation in degrees, counter-clockwise (default 0)")
+                        help="decal rotation in degrees, counter-clockwise (default %(default)g)")
 
 
 def _parse_uv(text):

@@ -41,7 +41,8 @@ log = logging.getLogger("leaffit_usd")
 
 
 def add_arguments(p) -> None:
-    from leaffit_usd.commands._args import add_frame_arguments, add_segment_arguments, pos_int
+    from leaffit_usd.commands._args import add_frame_arguments, add_segment_arguments, default, pos_int
+    from leaffit_usd.segment.auto import SegmentParams
     from leaffit_usd.segment.edits import add_edits_argument
 
     p.add_argument("input", metavar="INPUT",
@@ -54,17 +55,14 @@ def add_arguments(p) -> None:
     p.add_argument("--prim", default=None, metavar="PATH", help="USD only: the splat prim when there are several")
     add_frame_arguments(p)
     g = add_segment_arguments(p, "parameters (paper defaults, working units: plant height 1)")
-    g.add_argument("--seed", type=pos_int, help="seed of the random geodesic subset (0)")
+    g.add_argument("--seed", type=pos_int,
+                   help=f"seed of the random geodesic subset ({default(SegmentParams, 'seed')})")
 
 
 def params_from_args(args):
-    from leaffit_usd.commands._args import segment_overrides
-    from leaffit_usd.segment.auto import SegmentParams
-
-    kw = segment_overrides(args)
-    if getattr(args, "seed", None) is not None:
-        kw["seed"] = args.seed
-    return SegmentParams(**kw).validate()
+    """The validated ``SegmentParams`` of a parsed command line."""
+    seed = getattr(args, "seed", None)
+    return _args.segment_params(args, **({} if seed is None else {"seed": seed}))
 
 
 def run(args) -> int:

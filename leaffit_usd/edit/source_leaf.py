@@ -65,7 +65,8 @@ def template_from_leaf_cloud(cloud: GaussianCloud, base_point=None, apex_point=N
         petiole base and the apex (otherwise both are detected, see :func:`find_base_apex`).
     """
     from leaffit_usd.edit.plant_io import EditablePlant
-    from leaffit_usd.fit.register import FitParams, fit_leaves
+    from leaffit_usd.fit.params import FitParams
+    from leaffit_usd.fit.register import fit_leaves
     from leaffit_usd.mesh.template import build_template_mesh
     from leaffit_usd.segment.result import Segmentation
     from leaffit_usd.splats.transform import transform_cloud

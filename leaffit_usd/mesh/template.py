@@ -60,7 +60,7 @@ from leaffit_usd.mesh.result import TemplateMesh
 log = logging.getLogger("leaffit_usd")
 
 METHODS = ("auto", "bpa", "planar")
-FORMATS = ("png", "exr")
+FORMATS = ("png", "exr")  # write_textures: lossless (8-bit sRGB or half-float linear)
 MAX_OFF_SHEET_FRACTION = 0.02  # samples farther than one spacing from the sheet (rim left out)
 
 
@@ -69,8 +69,8 @@ class MeshParams:
     """Template mesh parameters.
 
     vertex_budget : maximum number of sheet vertices (FPS samples), paper: 2,048
-    texture_size : width = height of each side's texture in pixels
-    texture_format : "png" (8-bit sRGB RGBA) or "exr" (half float, linear RGB, straight alpha)
+    texture_size : width = height of each side's baked texture in pixels (``convert --bake-size``;
+        the stage's files may be downsampled when written: ``WriteOptions.texture_max_size``)
     method : "auto" (BPA, planar fallback), "bpa" (BPA only; still falls back when it produces
         nothing usable) or "planar"
     bpa_radii : ball radii, multiples of the samples' median nearest-neighbour spacing
@@ -82,7 +82,6 @@ class MeshParams:
 
     vertex_budget: int = 2048
     texture_size: int = 1024
-    texture_format: str = "png"
     method: str = "auto"
     bpa_radii: tuple = (2.0, 3.0, 4.0)
     alpha: float = 2.5
@@ -95,8 +94,6 @@ class MeshParams:
             raise ParameterError("vertex_budget", "an integer >= 3", self.vertex_budget)
         if not isinstance(self.texture_size, (int, np.integer)) or not 8 <= self.texture_size <= 16384:
             raise ParameterError("texture_size", "an integer in [8, 16384]", self.texture_size)
-        if self.texture_format not in FORMATS:
-            raise ParameterError("texture_format", " or ".join(FORMATS), self.texture_format)
         if self.method not in METHODS:
             raise ParameterError("method", ", ".join(METHODS), self.method)
         radii = tuple(self.bpa_radii)

@@ -74,6 +74,18 @@ class WriteOptions:
     baked: bool | str = "auto"
     prim_name: str | None = None
 
+    def validate(self) -> "WriteOptions":
+        """Raise ParameterError (named after convert's flags) for a value out of range."""
+        if self.texture_format not in TEXTURE_FORMATS:
+            raise ParameterError("--texture-format", " or ".join(TEXTURE_FORMATS), self.texture_format)
+        if not (16 <= int(self.texture_max_size) <= 16384):
+            raise ParameterError("--texture-size", "an integer in 16..16384", self.texture_max_size)
+        if not 1 <= int(self.jpeg_quality) <= 100:
+            raise ParameterError("jpeg_quality", "an integer in 1..100", self.jpeg_quality)
+        if self.baked not in (True, False, "auto"):
+            raise ParameterError("--baked", "auto, yes or no", self.baked)
+        return self
+
 
 @dataclass
 class WriteResult:
@@ -110,10 +122,7 @@ def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
     ext = path.suffix.lower()
     if ext not in FORMATS:
         raise ParameterError("output", f"a file ending in {', '.join(FORMATS)}", str(path))
-    if options.texture_format not in TEXTURE_FORMATS:
-        raise ParameterError("--texture-format", " or ".join(TEXTURE_FORMATS), options.texture_format)
-    if not (16 <= int(options.texture_max_size) <= 16384):
-        raise ParameterError("--texture-size", "an integer in 16..16384", options.texture_max_size)
+    options.validate()
     _check_asset(asset)
     leaves = _check_leaves(asset, leaves)
 
@@ -133,8 +142,6 @@ def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
             front_tex, back_tex = "./" + rel["texture_front"], "./" + rel["texture_back"]
         else:
             front_tex, back_tex = asset.front_texture, asset.back_texture
-        if options.baked not in (True, False, "auto"):
-            raise ParameterError("--baked", "auto, yes or no", options.baked)
         want_baked = (ext != ".usdz") if options.baked == "auto" else bool(options.baked)
         baked_rel = f"{stem}.baked.usdc" if want_baked and asset.n_leaves else None
         if baked_rel:

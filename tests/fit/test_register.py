@@ -9,9 +9,10 @@ from scipy.spatial import cKDTree
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.fit.mls import deform_points
 from leaffit_usd.geometry.sampling import farthest_point_sampling
-from leaffit_usd.fit.register import Adam, FitParams, fit_leaves
+from leaffit_usd.fit.params import FitParams
+from leaffit_usd.fit.register import Adam, fit_leaves
 from leaffit_usd.fit.result import LeafFits
-from leaffit_usd.fit.synthetic import make_plant
+from samples.synthetic.fit import make_plant
 from leaffit_usd.segment.result import Segmentation
 from leaffit_usd.serialize import load_value, save_value
 
@@ -234,7 +235,7 @@ def test_convert_fit_flags_reach_fit_params(capsys):
     def fit_of(*argv):
         p = argparse.ArgumentParser()
         convert.add_arguments(p)
-        return FitParams(**convert.options_from_args(p.parse_args(["x.ply", "-o", "y.usda", *argv])).fit)
+        return convert.options_from_args(p.parse_args(["x.ply", "-o", "y.usda", *argv])).fit
 
     assert fit_of() == FitParams() and FitParams().sigma == "auto" and FitParams().refine > 0
     assert fit_of("--paper-fit") == FitParams.paper() == FitParams(sigma=0.1, refine=0)

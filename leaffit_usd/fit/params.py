@@ -1,0 +1,91 @@
+"""Registration parameters (no torch: the CLI reads their defaults for its help text)."""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from leaffit_usd.errors import ParameterError
+from leaffit_usd.fit.denoise import DenoiseParams
+from leaffit_usd.fit.mls import DEFAULT_REG, DEFAULT_SIGMA
+
+#: FitParams overrides that give the paper's registration exactly (``FitParams.paper()``,
+#: ``convert --paper-fit``): its absolute kernel width, Adam only.
+PAPER_FIT = {"sigma": DEFAULT_SIGMA, "refine": 0}
+
+
+@dataclass
+class FitParams:
+    """Registration parameters (working units: plant height 1). Defaults = ours; the paper's
+    optimisation exactly is ``FitParams.paper()`` (sigma 0.1, no refinement).
+
+    K : control points per leaf (32); steps, lr : Adam iterations (200) and learning rate (7e-3)
+    lam : Chamfer weight lambda (0.7); reg : MLS regulariser (fraction of sigma)
+    sigma : MLS kernel width: "auto" = ``sigma_relative`` x the template leaf's size (RMS radius
+        in its plane; ours, see the module doc), or a number in working units (paper: 0.1)
+    refine : Gauss-Newton iterations after Adam (ours; 0 = the paper's optimisation only)
+    plane_weight, landmark_weight : weights of the point-to-plane (depth) term and of the
+        base/apex landmark term in the refinement; damping : its Levenberg-Marquardt damping
+    template : "auto" or a leaf label (int or digit string)
+    optimize : False = initial correspondence only (the paper's "w/o optim." ablation)
+    seed : torch/numpy seed (the method itself is deterministic)
+    image_size : side of each leaf's square depth image, pixels
+    max_points : Gaussians per leaf used in the optimisation (farthest point sampling)
+    max_scale_ratio : a leaf more than this many times larger (or smaller) than the template is
+        treated as degenerate (likely a merged segment) and fitted rigidly
+    fg_alpha : a depth-map pixel is foreground where its accumulated alpha exceeds this
+    denoise : ``DenoiseParams`` (paper: sigma 0.1, the same value as the MLS kernel)
+    """
+
+    K: int = 32
+    steps: int = 200
+    lr: float = 7e-3
+    lam: float = 0.7
+    sigma: float | str = "auto"
+    sigma_relative: float = 0.7
+    reg: float = DEFAULT_REG
+    refine: int = 10
+    plane_weight: float = 1.0
+    landmark_weight: float = 0.05
+    damping: float = 1e-3
+    template: str | int = "auto"
+    optimize: bool = True
+    seed: int = 0
+    image_size: int = 64
+    max_points: int = 1024
+    max_scale_ratio: float = 4.0
+    fg_alpha: float = 0.5
+    denoise: DenoiseParams = field(default_factory=DenoiseParams)
+
+    @classmethod
+    def paper(cls, **overrides) -> "FitParams":
+        """The paper's registration exactly: sigma = 0.1 for the kernel, Adam only."""
+        return cls(**{**PAPER_FIT, **overrides})
+
+    def validate(self) -> None:
+        for name, lo in (("K", 1), ("steps", 0), ("image_size", 8), ("max_points", 16),
+                         ("refine", 0)):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < lo:
+                raise ParameterError(name, f"an integer >= {lo}", v)
+        pos = ["lr", "max_scale_ratio", "sigma_relative"] + ([] if self.sigma == "auto" else ["sigma"])
+        for name in pos:
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+                    and v > 0):
+                raise ParameterError(name, "a positive number" + (" or 'auto'" if name == "sigma" else ""), v)
+        for name in ("lam", "plane_weight", "landmark_weight", "damping"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
+                raise ParameterError(name, "a number >= 0", v)
+        if self.max_scale_ratio < 1:
+            raise ParameterError("max_scale_ratio", "a number >= 1", self.max_scale_ratio)
+        t = self.template
+        if not (t == "auto" or isinstance(t, (int, np.integer)) and not isinstance(t, bool)
+                or isinstance(t, str) and t.strip().isdigit()):
+            raise ParameterError("template", "'auto' or a leaf label (1..L)", t)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["template"] = self.template if isinstance(self.template, str) else int(self.template)
+        return d
