@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml scripts/setup_system.sh
 	./scripts/setup_system.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test,formats]'
+	$(PY) -m pip install -q -e '.[dev,formats]'
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -16,7 +16,7 @@ blade mesh** (mapped into the template's local frame; decimated to ~1500 faces w
 decimation so NR-ICP stays tractable; all methods get the same mesh), placed with the target's
 ``leaf_to_working``; it is compared with the target's GT blade mesh (working frame, plant height 1)
 through 10,000 area samples each (``metrics.deformation``). The template leaf itself is excluded.
-All methods start from the same PCA frame + scale; see ``leaffit_usd/fit/baselines.py``.
+All methods start from the same PCA frame + scale; see ``benchmarks/baselines/registration.py``.
 
 Time per leaf: ours = ``fit_leaves`` time / leaves (all leaves are optimised in one batch,
 including denoising and template choice); baselines = their own registration time per leaf
@@ -47,10 +47,11 @@ sys.path.insert(0, str(ROOT))
 
 import torch  # noqa: E402
 
-from leaffit_usd.fit.baselines import cpd_baseline, nricp_baseline, pca_baseline  # noqa: E402
+from benchmarks.baselines.registration import cpd_baseline, nricp_baseline, pca_baseline  # noqa: E402
 from leaffit_usd.fit.denoise import DenoiseParams, denoise_leaf  # noqa: E402
 from leaffit_usd.fit.mls import deform_points  # noqa: E402
-from leaffit_usd.fit.register import FitParams, fit_leaves  # noqa: E402
+from leaffit_usd.fit.params import FitParams  # noqa: E402
+from leaffit_usd.fit.register import fit_leaves  # noqa: E402
 from leaffit_usd.geometry.pca import to_local  # noqa: E402
 from leaffit_usd.io_util import atomic_path  # noqa: E402
 from leaffit_usd.metrics.deformation import mesh_metrics  # noqa: E402

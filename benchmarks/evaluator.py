@@ -32,7 +32,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from leaffit_usd.runtime.evaluator import LeafEvaluator, evaluate, instance_matrices  # noqa: E402
-from leaffit_usd.runtime.synthetic import synthetic_asset  # noqa: E402
+from samples.synthetic.runtime import synthetic_asset  # noqa: E402
 
 TARGET_MS = 100.0
 

@@ -1,7 +1,7 @@
 """Segmentation benchmark: the paper's Table 1 (Acc, mIoU, mF1, PQ, time; mean and std).
 
 Runs ours (heat geodesics, :func:`leaffit_usd.segment.auto.segment_plant`) and the training-free
-Euclidean-density baseline (:func:`leaffit_usd.segment.baseline.segment_density`) on the generated
+Euclidean-density baseline (:func:`benchmarks.baselines.segmentation.segment_density`) on the generated
 benchmark plants (``samples.benchmark_suite()``, ground truth from the generator), reported per
 group: the paper's "elliptic" set (its six plants: rubber tree, green pepper, golden pothos,
 black pearl pepper, ruby leaf, white flag bush), and by the generator's leaf family: elliptic,
@@ -30,7 +30,7 @@ sys.path.insert(0, str(ROOT))
 
 from leaffit_usd.metrics import segmentation_scores  # noqa: E402
 from leaffit_usd.segment.auto import SegmentParams, segment_plant, working_normals  # noqa: E402
-from leaffit_usd.segment.baseline import segment_density  # noqa: E402
+from benchmarks.baselines.segmentation import segment_density  # noqa: E402
 from leaffit_usd.splats.frame import make_frame  # noqa: E402
 
 PAPER_ELLIPTIC = ["rubber_tree", "green_pepper", "golden_pothos", "black_pearl_pepper", "ruby_leaf",

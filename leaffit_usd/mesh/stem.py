@@ -157,14 +157,6 @@ def _resolve_radii(params: StemParams, seg, points_working, fits) -> tuple[float
 
 
 # ---- tree -> stem edges and radii ---------------------------------------------------------------
-@dataclass
-class _StemGraph:
-    nodes: np.ndarray        # (S,) tree node index of each stem-graph node
-    parent: np.ndarray       # (S,) stem-graph parent (-1 for a component root)
-    n_tips: np.ndarray       # (S,) tips fed by the edge (node -> parent)
-    t: np.ndarray            # (S,) relative position root (0) .. tips (1)
-
-
 def stem_edges(seg) -> tuple[np.ndarray, np.ndarray]:
     """Edges of the tree that are not inside a leaf: (child, parent) indices into tree_nodes.
 

@@ -1,4 +1,4 @@
-"""Write evaluated leaves (``BakedLeaves``) to disk: the ``leaves.npz`` format of DESIGN.md, or a
+"""Write evaluated leaves (``BakedLeaves``) to disk: the ``leaves.npz`` format below, or a
 plain USD stage with one Mesh per leaf for tools that cannot run the deformer.
 
 npz keys (all written by :func:`write_npz`; the first three are the contract):

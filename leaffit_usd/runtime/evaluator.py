@@ -39,7 +39,7 @@ FRAMES = ("input", "asset")
 
 @dataclass
 class BakedLeaves:
-    """The explicit leaves of one plant (the ``bake`` output; npz layout in DESIGN.md).
+    """The explicit leaves of one plant (the ``bake`` output; npz layout in ``runtime.bake``).
 
     vertices : (L * V, 3) float, all leaves concatenated (leaf j owns rows j*V .. (j+1)*V - 1),
         in ``frame``

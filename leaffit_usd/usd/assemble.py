@@ -1,6 +1,6 @@
 """Pipeline results (working frame) -> PlantAsset (asset frame).
 
-Frames (see DESIGN.md): the fit, mesh and stem results are in the *working* frame (root at the
+Frames (``splats.frame``, docs/architecture.md): the fit, mesh and stem results are in the *working* frame (root at the
 origin, up +Z, plant height 1). The *asset* frame is what the USD stage uses:
 
     x_asset = s_a * R_a @ x_working

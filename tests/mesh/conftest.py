@@ -1,7 +1,7 @@
 """Shared synthetic inputs for the mesh tests (small, so the whole area runs in seconds)."""
 import pytest
 
-from leaffit_usd.mesh.synthetic import synthetic_leaf, synthetic_tree
+from samples.synthetic.mesh import synthetic_leaf, synthetic_tree
 
 # tolerances in one place (relative to the leaf length)
 SHEET_MEAN_DIST_REL = 0.01

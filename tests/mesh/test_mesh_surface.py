@@ -111,7 +111,7 @@ def test_ear_clip_concave_polygon():
 
 
 def test_planar_sheet_fills_capture_holes():
-    from leaffit_usd.mesh.synthetic import synthetic_leaf
+    from samples.synthetic.mesh import synthetic_leaf
 
     _, fits = synthetic_leaf(2500, seed=3, holes=True)
     pts = fits.template_points.astype(float)

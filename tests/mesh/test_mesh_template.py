@@ -6,7 +6,7 @@ import pytest
 
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.mesh import surface as S
-from leaffit_usd.mesh.synthetic import BOTTOM_RGB, TOP_RGB, synthetic_leaf
+from samples.synthetic.mesh import BOTTOM_RGB, TOP_RGB, synthetic_leaf
 from leaffit_usd.image_io import read_image_u8 as read_image
 from leaffit_usd.mesh.template import MeshParams, build_template_mesh, rasterize_polygon, write_textures
 
@@ -119,7 +119,7 @@ def test_write_read_textures_roundtrip(leaf_mesh, tmp_path):
         write_textures(leaf_mesh, tmp_path, "jpg")
 
 
-@pytest.mark.parametrize("bad", [dict(vertex_budget=2), dict(texture_size=4), dict(texture_format="tga"),
+@pytest.mark.parametrize("bad", [dict(vertex_budget=2), dict(texture_size=4),
                                  dict(method="poisson"), dict(bpa_radii=()), dict(alpha_threshold=1.5)])
 def test_params_validation(leaf, bad):
     cloud, fits = leaf

@@ -9,7 +9,7 @@ from leaffit_usd.geometry.normals import vertex_normals
 from leaffit_usd.runtime.bake import read_baked_usd
 from leaffit_usd.runtime.evaluator import evaluate
 from leaffit_usd.runtime.evaluator import asset_leaves
-from leaffit_usd.runtime.synthetic import synthetic_asset
+from samples.synthetic.runtime import synthetic_asset
 from leaffit_usd.usd.reader import read_stage
 from leaffit_usd.usd.writer import LeafTextures, write_stage
 

@@ -11,7 +11,7 @@ from leaffit_usd.errors import ParameterError, UserError
 from leaffit_usd.fit.mls import deform_points
 from leaffit_usd.runtime.evaluator import (BakedLeaves, LeafEvaluator, evaluate,
                                            instance_matrices)
-from leaffit_usd.runtime.synthetic import random_quaternions, synthetic_asset
+from samples.synthetic.runtime import random_quaternions, synthetic_asset
 
 # Tolerances, relative to the leaf size (bounding-box diagonal of the template) unless noted.
 TOL_FLOAT64 = 1e-10      # two float64 evaluations of the same formula

@@ -11,7 +11,7 @@ from leaffit_usd.errors import ParameterError
 from leaffit_usd.runtime.evaluator import evaluate
 from leaffit_usd.runtime.shader import (SNIPPET, VARIANTS, GLDeformer, create_headless_context,
                                         snippet_source, validate_static, vertex_shader_source)
-from leaffit_usd.runtime.synthetic import synthetic_asset
+from samples.synthetic.runtime import synthetic_asset
 
 TOL_GLSL = 1e-5   # max |GLSL - CPU| per leaf, as a fraction of that leaf's bounding-box diagonal
 

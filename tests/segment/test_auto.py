@@ -7,9 +7,9 @@ import pytest
 from leaffit_usd.errors import ParameterError, UserError
 from leaffit_usd.metrics import segmentation_scores
 from leaffit_usd.segment.auto import SegmentParams, segment_plant, working_normals
-from leaffit_usd.segment.baseline import segment_density
+from benchmarks.baselines.segmentation import segment_density
 
-from .synth import make_plant
+from tests.segment.synth import make_plant
 
 WIDE = dict(leaf_length=0.3, leaf_width=0.2)  # blades wider than 2 epsilon, as the paper assumes
 MIN_MIOU = 95.0  # synthetic elliptic plants (the paper reports 98.2 on real elliptic plants)

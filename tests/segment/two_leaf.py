@@ -1,4 +1,5 @@
-"""Shared fixtures for the manual-segmentation tests: a synthetic two-leaf plant, a heat stand-in."""
+"""A synthetic two-leaf plant and a heat stand-in for the manual-segmentation tests (fixtures
+``plant`` and ``heat``, used through tests/segment and tests/viewer conftest.py)."""
 from __future__ import annotations
 
 import numpy as np

@@ -5,7 +5,7 @@ from leaffit_usd.cli import main
 from leaffit_usd.io_util import file_sha256
 from leaffit_usd.segment.edits import Edits, save_edits
 from leaffit_usd.splats import write_ply
-from tests.manual.conftest import two_leaf_plant
+from tests.segment.two_leaf import two_leaf_plant
 
 
 def test_segment_with_edits_replays_them(tmp_path):

@@ -47,8 +47,9 @@ def leaf_sheet(n_points: int, rng: np.random.Generator, curvature: float = 1.0):
 
 def random_quaternions(n: int, rng: np.random.Generator) -> np.ndarray:
     """(n, 4) uniformly random unit quaternions (w, x, y, z)."""
-    q = rng.normal(size=(n, 4))
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
+    from leaffit_usd.geometry.quaternion import normalize
+
+    return normalize(rng.normal(size=(n, 4)))
 
 
 def bend_targets(controls: np.ndarray, n: int, rng: np.random.Generator,

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from leaffit_usd.fit.baselines import cpd_baseline, nricp_baseline, pca_baseline
-from leaffit_usd.fit.synthetic import leaf_sheet
+from benchmarks.baselines.registration import cpd_baseline, nricp_baseline, pca_baseline
+from samples.synthetic.fit import leaf_sheet
 from leaffit_usd.metrics.deformation import mesh_metrics
 
 

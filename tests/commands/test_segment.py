@@ -10,7 +10,7 @@ from leaffit_usd.geometry.quaternion import matrix_to_quat
 from leaffit_usd.splats.cloud import GaussianCloud
 from leaffit_usd.splats.ply import write_ply
 
-from .synth import make_plant
+from tests.segment.synth import make_plant
 
 
 def _frame_from_normals(n):
