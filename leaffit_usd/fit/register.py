@@ -58,7 +58,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -133,46 +133,12 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
         log.info("fit: MLS kernel width sigma = %.4f (%.2f x template size %.4f)", sigma,
                  params.sigma_relative, T.size)
         params = replace(params, sigma=float(sigma))
-    for lf in leaves:
-        lf.scale = float(np.clip(lf.size / T.size, 1e-3, 1e3)) if lf.size > 0 and T.size > 0 else 1.0
-        if not lf.degenerate and lf.label != tmpl and not (
-                1.0 / params.max_scale_ratio <= lf.scale <= params.max_scale_ratio):
-            lf.degenerate = (f"size ratio {lf.scale:.2f} to the template leaf {tmpl} is beyond "
-                             f"max_scale_ratio={params.max_scale_ratio:g}")
-    for lf in leaves:
-        if lf.degenerate:
-            log.warning("fit: leaf %d is degenerate (%s); using a rigid fit", lf.label, lf.degenerate)
-
-    # template control points
+    _scale_to_template(leaves, T, tmpl, params)
     P_all = T.local                                            # template units (scale 1)
-    if len(P_all) == 0:
-        log.warning("fit: the template leaf %d has no Gaussians; every leaf is placed rigidly", tmpl)
-        p = np.zeros((params.K, 3))
-    else:
-        p = P_all[farthest_point_sampling(P_all, params.K, start=_start_index(P_all))]
-    K = len(p)
-    if K < params.K:
-        log.warning("fit: template leaf %d has only %d distinct points; using K=%d", tmpl, K, K)
-
+    p = _template_controls(P_all, tmpl, params)
     L = n_leaves
-    targets = np.repeat(p[None].astype(np.float64), L, axis=0)
     fallback = np.array([bool(lf.degenerate) for lf in leaves])
-    init_ok = []
-    for j, lf in enumerate(leaves):
-        if lf.degenerate or lf.label == tmpl:
-            continue
-        Q = lf.local / lf.scale
-        cidx = farthest_point_sampling(Q, K, start=_start_index(Q))
-        c = Q[cidx]
-        if len(c) < K:
-            lf.degenerate = f"only {len(c)} distinct points"
-            fallback[j] = True
-            log.warning("fit: leaf %d is degenerate (%s); using a rigid fit", lf.label, lf.degenerate)
-            continue
-        cost = ((p[:, None, :] - c[None, :, :]) ** 2).sum(-1)
-        rows, cols = linear_sum_assignment(cost)
-        targets[j, rows] = c[cols]
-        init_ok.append(j)
+    targets, init_ok = _initial_targets(leaves, p, tmpl, fallback)
 
     if params.optimize and params.steps > 0 and init_ok:
         opt = _optimize(T, [leaves[j] for j in init_ok], p, targets[init_ok], means, covs, opac,
@@ -187,14 +153,7 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
         targets[j] = p
         fallback[j] = True
 
-    errors = np.zeros(L, np.float32)
-    A_full = mls_weights(p, P_all, params.sigma, params.reg)
-    for j, lf in enumerate(leaves):
-        if len(lf.local) == 0:
-            continue
-        deformed = A_full @ targets[j]
-        errors[j] = lf.scale * _chamfer_mean(deformed, lf.local / lf.scale)
-
+    errors = _fit_errors(leaves, p, P_all, targets, params)
     l2w = np.stack([lf.frame @ np.diag([lf.scale, lf.scale, lf.scale, 1.0]) for lf in leaves])
     info = params.to_dict()          # no timings here: the output must be byte-deterministic
     info["degenerate"] = {str(lf.label): lf.degenerate for lf in leaves if lf.degenerate}
@@ -215,6 +174,69 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
         reg=float(params.reg),
         params=info,
     )
+
+
+def _scale_to_template(leaves: list, T, tmpl: int, params: FitParams) -> None:
+    """Each leaf's size relative to the template leaf ``T``; a leaf beyond max_scale_ratio (or
+    already degenerate) is marked for a rigid fit (logged)."""
+    for lf in leaves:
+        lf.scale = float(np.clip(lf.size / T.size, 1e-3, 1e3)) if lf.size > 0 and T.size > 0 else 1.0
+        if not lf.degenerate and lf.label != tmpl and not (
+                1.0 / params.max_scale_ratio <= lf.scale <= params.max_scale_ratio):
+            lf.degenerate = (f"size ratio {lf.scale:.2f} to the template leaf {tmpl} is beyond "
+                             f"max_scale_ratio={params.max_scale_ratio:g}")
+    for lf in leaves:
+        if lf.degenerate:
+            log.warning("fit: leaf %d is degenerate (%s); using a rigid fit", lf.label, lf.degenerate)
+
+
+def _template_controls(P_all: np.ndarray, tmpl: int, params: FitParams) -> np.ndarray:
+    """(K, 3) the template's control points: FPS over its (M, 3) local points (zeros if none)."""
+    if len(P_all) == 0:
+        log.warning("fit: the template leaf %d has no Gaussians; every leaf is placed rigidly", tmpl)
+        p = np.zeros((params.K, 3))
+    else:
+        p = P_all[farthest_point_sampling(P_all, params.K, start=_start_index(P_all))]
+    K = len(p)
+    if K < params.K:
+        log.warning("fit: template leaf %d has only %d distinct points; using K=%d", tmpl, K, K)
+    return p
+
+
+def _initial_targets(leaves: list, p: np.ndarray, tmpl: int, fallback: np.ndarray):
+    """(L, K, 3) initial targets (FPS of each leaf matched to ``p`` by Jonker-Volgenant; ``p`` for
+    the template and rigid leaves) and the indices of the leaves to optimise. Updates ``fallback``."""
+    K = len(p)
+    targets = np.repeat(p[None].astype(np.float64), len(leaves), axis=0)
+    init_ok = []
+    for j, lf in enumerate(leaves):
+        if lf.degenerate or lf.label == tmpl:
+            continue
+        Q = lf.local / lf.scale
+        cidx = farthest_point_sampling(Q, K, start=_start_index(Q))
+        c = Q[cidx]
+        if len(c) < K:
+            lf.degenerate = f"only {len(c)} distinct points"
+            fallback[j] = True
+            log.warning("fit: leaf %d is degenerate (%s); using a rigid fit", lf.label, lf.degenerate)
+            continue
+        cost = ((p[:, None, :] - c[None, :, :]) ** 2).sum(-1)
+        rows, cols = linear_sum_assignment(cost)
+        targets[j, rows] = c[cols]
+        init_ok.append(j)
+    return targets, init_ok
+
+
+def _fit_errors(leaves: list, p, P_all, targets, params: FitParams) -> np.ndarray:
+    """(L,) float32 mean Chamfer distance of each deformed template to its leaf, working units."""
+    errors = np.zeros(len(leaves), np.float32)
+    A_full = mls_weights(p, P_all, params.sigma, params.reg)
+    for j, lf in enumerate(leaves):
+        if len(lf.local) == 0:
+            continue
+        deformed = A_full @ targets[j]
+        errors[j] = lf.scale * _chamfer_mean(deformed, lf.local / lf.scale)
+    return errors
 
 
 # ---------------------------------------------------------------------------------------------

@@ -137,6 +137,49 @@ def render_orthographic(means, cov, colors, opacities, width: int, height: int, 
     ia, ib, ic = c / det, -b / det, a / det         # conic (inverse 2D covariance)
     z = means[:, 2]
 
+    bins = _bin_tiles(u, v, a, c, det, z, opacities, W, H, tile, from_below)
+    ts, n_tx, n_ty = bins.ts, bins.n_tx, bins.n_ty
+    P = ts * ts
+    # pixel features of a tile, tile-local coordinates: [x^2, y^2, xy, x, y, 1]
+    py, px = torch.meshgrid(torch.arange(ts, device=dev, dtype=dtype),
+                            torch.arange(ts, device=dev, dtype=dtype), indexing="ij")
+    px, py = px.reshape(-1), py.reshape(-1)
+    feats = torch.stack([px * px, py * py, px * py, px, py, torch.ones_like(px)], -1)   # (P, 6)
+    # values composited per Gaussian: colour channels, z, 1 (accumulated alpha)
+    vals = torch.cat([colors, z[:, None], torch.ones_like(z)[:, None]], 1)               # (N, C+2)
+    log_op = torch.log(opacities.clamp_min(1e-30))
+
+    out = torch.zeros(n_tx * n_ty, P, C + 2, dtype=dtype, device=dev)
+    active = torch.nonzero(bins.per_tile).flatten()
+    if active.numel():
+        tiles, res = _composite_active(active, bins, max_elements, u, v, ia, ib, ic, log_op, vals, feats)
+        out = out.index_copy(0, tiles, res)
+
+    out = out.reshape(n_ty, n_tx, ts, ts, C + 2).transpose(1, 2).reshape(n_ty * ts, n_tx * ts, C + 2)
+    out = out[:H, :W]
+    alpha_img = out[..., C + 1]
+    color_img = out[..., :C] + (1.0 - alpha_img)[..., None] * bg
+    covered = alpha_img > DEPTH_ALPHA_MIN
+    depth_img = torch.where(covered, out[..., C] / torch.where(covered, alpha_img,
+                                                                torch.ones_like(alpha_img)),
+                            torch.zeros_like(alpha_img))
+    return RenderResult(color_img, depth_img, alpha_img)
+
+
+class _Bins(NamedTuple):
+    """Gaussian/tile pairs sorted by tile, then depth (nearest first)."""
+
+    ts: int                  # tile side, pixels
+    n_tx: int
+    n_ty: int
+    gid: torch.Tensor        # (pairs,) Gaussian of each pair
+    per_tile: torch.Tensor   # (tiles,) pairs per tile
+    tstart: torch.Tensor     # (tiles,) first pair of each tile
+
+
+def _bin_tiles(u, v, a, c, det, z, opacities, W: int, H: int, tile, from_below: bool) -> _Bins:
+    """Assign each visible Gaussian to the tiles its 1/255-alpha footprint touches."""
+    n, dev = u.shape[0], u.device
     with torch.no_grad():
         op = opacities.detach().clamp(0.0, 1.0)
         # radius where o * exp(-0.5 r^2 / lambda_max) = 1/255; beyond it alpha < 1/255
@@ -177,54 +220,32 @@ def render_orthographic(means, cov, colors, opacities, width: int, height: int, 
         gid, tile_of = gid[srt], tile_of[srt]
         per_tile = torch.bincount(tile_of, minlength=n_tiles)
         tstart = torch.cumsum(per_tile, 0) - per_tile
+    return _Bins(ts, n_tx, n_ty, gid, per_tile, tstart)
 
-    P = ts * ts
-    # pixel features of a tile, tile-local coordinates: [x^2, y^2, xy, x, y, 1]
-    py, px = torch.meshgrid(torch.arange(ts, device=dev, dtype=dtype),
-                            torch.arange(ts, device=dev, dtype=dtype), indexing="ij")
-    px, py = px.reshape(-1), py.reshape(-1)
-    feats = torch.stack([px * px, py * py, px * py, px, py, torch.ones_like(px)], -1)   # (P, 6)
-    # values composited per Gaussian: colour channels, z, 1 (accumulated alpha)
-    vals = torch.cat([colors, z[:, None], torch.ones_like(z)[:, None]], 1)               # (N, C+2)
-    log_op = torch.log(opacities.clamp_min(1e-30))
 
-    out = torch.zeros(n_tiles, P, C + 2, dtype=dtype, device=dev)
-    active = torch.nonzero(per_tile).flatten()
-    if active.numel():
-        # group active tiles by their Gaussian count so padding stays small
-        counts = per_tile[active]
-        act_order = torch.argsort(counts)
-        active, counts = active[act_order], counts[act_order].tolist()
-        i = 0
-        tiles_list, res_list = [], []
-        while i < active.numel():
-            # grow the chunk while memory allows (counts are ascending: gmax = last count)
-            # and, once the chunk is worth a call (>= 64k elements), while the padding it adds
-            # stays small (counts within 1.5x of the chunk's first)
-            j = i + 1
-            while j < active.numel() and (j - i + 1) * P * counts[j] <= max_elements and (
-                    counts[j] <= 1.5 * counts[i] or (j - i) * P * counts[j - 1] < 65536):
-                j += 1
-            tiles = active[i:j]
-            res_list.append(_composite_chunk(tiles, counts[j - 1], ts, n_tx, gid, tstart,
-                                             per_tile, u, v, ia, ib, ic, log_op, vals, feats))
-            tiles_list.append(tiles)
-            i = j
-        out = out.index_copy(0, torch.cat(tiles_list), torch.cat(res_list))
-
-    def untile(x):
-        x = x.reshape(n_ty, n_tx, ts, ts, *x.shape[2:])
-        x = x.transpose(1, 2).reshape(n_ty * ts, n_tx * ts, *x.shape[4:])
-        return x[:H, :W]
-
-    out = untile(out)
-    alpha_img = out[..., C + 1]
-    color_img = out[..., :C] + (1.0 - alpha_img)[..., None] * bg
-    covered = alpha_img > DEPTH_ALPHA_MIN
-    depth_img = torch.where(covered, out[..., C] / torch.where(covered, alpha_img,
-                                                                torch.ones_like(alpha_img)),
-                            torch.zeros_like(alpha_img))
-    return RenderResult(color_img, depth_img, alpha_img)
+def _composite_active(active, bins: _Bins, max_elements: int, u, v, ia, ib, ic, log_op, vals, feats):
+    """Composite every active tile, in chunks of tiles with similar Gaussian counts (so padding
+    stays small). Returns (tile indices (T,), pixel values (T, P, C + 2))."""
+    P = bins.ts * bins.ts
+    counts = bins.per_tile[active]
+    act_order = torch.argsort(counts)
+    active, counts = active[act_order], counts[act_order].tolist()
+    i = 0
+    tiles_list, res_list = [], []
+    while i < active.numel():
+        # grow the chunk while memory allows (counts are ascending: gmax = last count)
+        # and, once the chunk is worth a call (>= 64k elements), while the padding it adds
+        # stays small (counts within 1.5x of the chunk's first)
+        j = i + 1
+        while j < active.numel() and (j - i + 1) * P * counts[j] <= max_elements and (
+                counts[j] <= 1.5 * counts[i] or (j - i) * P * counts[j - 1] < 65536):
+            j += 1
+        tiles = active[i:j]
+        res_list.append(_composite_chunk(tiles, counts[j - 1], bins.ts, bins.n_tx, bins.gid, bins.tstart,
+                                         bins.per_tile, u, v, ia, ib, ic, log_op, vals, feats))
+        tiles_list.append(tiles)
+        i = j
+    return torch.cat(tiles_list), torch.cat(res_list)
 
 
 def _composite_chunk(tiles, gmax, ts, n_tx, gid, tstart, per_tile, u, v, ia, ib, ic, log_op,

@@ -86,7 +86,7 @@ def read_stage(path) -> PlantAsset:
 
 def read_stage_object(stage, path="<stage>") -> PlantAsset:
     """Like :func:`read_stage` for an already opened ``pxr.Usd.Stage`` (edits included)."""
-    from pxr import UsdGeom, UsdShade
+    from pxr import UsdGeom
 
     inst_prim = find_instancer(stage)
     if inst_prim is None:
@@ -146,6 +146,25 @@ def read_stage_object(stage, path="<stage>") -> PlantAsset:
         labels = np.asarray(ids, np.int32) if ids is not None and len(ids) == L else np.arange(1, L + 1, dtype=np.int32)
 
     root = stage.GetDefaultPrim() or inst_prim.GetParent()
+    stem_pts, stem_faces = _read_stem(root)
+    metadata, asset_to_input = _read_metadata(stage, root)
+    front_tex, back_tex = _template_textures(mesh)
+
+    return PlantAsset(
+        template_points=points, template_faces=faces, template_normals=normals,
+        template_uvs=uvs, template_side=side, template_controls=controls,
+        targets=tq.reshape(L, K, 3), positions=pos, orientations=orient, scales=scales,
+        leaf_labels=labels,
+        sigma=float(_get(inst_prim, S.ATTR_SIGMA, 0.1)), reg=float(_get(inst_prim, S.ATTR_REG, 0.01)),
+        stem_points=stem_pts, stem_faces=stem_faces, asset_to_input=asset_to_input,
+        front_texture=front_tex, back_texture=back_tex, metadata=metadata,
+    )
+
+
+def _read_stem(root) -> tuple[np.ndarray, np.ndarray]:
+    """The stem Mesh under the plant: (P, 3) float32 points, (G, 3) int32 faces (empty if none)."""
+    from pxr import UsdGeom
+
     stem_pts, stem_faces = np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)
     for child in root.GetChildren():
         if child.IsA(UsdGeom.Mesh) and (child.GetCustomDataByKey("leaffit:role") == "stem"
@@ -154,6 +173,12 @@ def read_stage_object(stage, path="<stage>") -> PlantAsset:
             stem_pts = _np(sm.GetPointsAttr().Get(), np.float32, (3,))
             stem_faces = _np(sm.GetFaceVertexIndicesAttr().Get(), np.int32, (3,))
             break
+    return stem_pts, stem_faces
+
+
+def _read_metadata(stage, root) -> tuple[dict, np.ndarray]:
+    """(metadata dict, (4, 4) asset_to_input) from the plant's customData['leaffit']."""
+    from pxr import UsdGeom
 
     cd = root.GetCustomDataByKey("leaffit") or {}
     metadata = {}
@@ -168,6 +193,12 @@ def read_stage_object(stage, path="<stage>") -> PlantAsset:
         metadata = {"tool_version": cd.get("toolVersion", ""), "input_sha256": cd.get("inputSha256", "")}
     metadata.setdefault("up_axis", str(UsdGeom.GetStageUpAxis(stage)))
     metadata.setdefault("meters_per_unit", float(UsdGeom.GetStageMetersPerUnit(stage)))
+    return metadata, asset_to_input
+
+
+def _template_textures(mesh) -> tuple[str, str]:
+    """(front, back) texture paths as authored on the materials bound to the face subsets."""
+    from pxr import UsdGeom, UsdShade
 
     front_tex = back_tex = ""
     for subset in UsdGeom.Subset.GetGeomSubsets(mesh, UsdGeom.Tokens.face, "materialBind"):
@@ -177,16 +208,7 @@ def read_stage_object(stage, path="<stage>") -> PlantAsset:
             front_tex = tex
         elif subset.GetPrim().GetName() == "back":
             back_tex = tex
-
-    return PlantAsset(
-        template_points=points, template_faces=faces, template_normals=normals,
-        template_uvs=uvs, template_side=side, template_controls=controls,
-        targets=tq.reshape(L, K, 3), positions=pos, orientations=orient, scales=scales,
-        leaf_labels=labels,
-        sigma=float(_get(inst_prim, S.ATTR_SIGMA, 0.1)), reg=float(_get(inst_prim, S.ATTR_REG, 0.01)),
-        stem_points=stem_pts, stem_faces=stem_faces, asset_to_input=asset_to_input,
-        front_texture=front_tex, back_texture=back_tex, metadata=metadata,
-    )
+    return front_tex, back_tex
 
 
 def _material_texture(material) -> str:

@@ -130,8 +130,6 @@ def _usd_errors(errors) -> list[Finding]:
 
 def layout_findings(stage) -> list[Finding]:
     """Check the LeafFit layout (see docs/usd_layout.md). Each rule is named ``leaffit:<rule>``."""
-    from pxr import Kind, Usd, UsdGeom, UsdShade
-
     from leaffit_usd.usd.reader import find_instancer
 
     out: list[Finding] = []
@@ -139,10 +137,32 @@ def layout_findings(stage) -> list[Finding]:
     def add(sev, rule, path, msg):
         out.append(Finding(sev, f"leaffit:{rule}", str(path), msg))
 
+    root = _check_plant(stage, add)
+    if root is None:
+        return out
+    inst_prim = find_instancer(stage)
+    if inst_prim is None:
+        add("error", "Instancer", root.GetPath(), "no PointInstancer with authored "
+            f"{S.ATTR_CONTROLS} under the plant")
+        return out
+    meshes, L = _check_instancer(stage, inst_prim, add)
+    K = _check_deformer(inst_prim, add)
+    _check_targets(inst_prim, L, K, add)
+    if meshes:
+        _check_template_mesh(stage, root, meshes[0], add)
+    _check_stem(root, add)
+    _check_baked(stage, root, L, add)
+    return out
+
+
+def _check_plant(stage, add):
+    """The plant prim (defaultPrim, kind, units, provenance); returns it, or None."""
+    from pxr import Kind, Usd
+
     root = stage.GetDefaultPrim()
     if not root:
         add("error", "DefaultPrim", "/", "the stage has no defaultPrim (the plant)")
-        return out
+        return None
     if Usd.ModelAPI(root).GetKind() != Kind.Tokens.component:
         add("error", "PlantKind", root.GetPath(), f"the plant prim's kind is "
             f"'{Usd.ModelAPI(root).GetKind()}', expected 'component'")
@@ -157,12 +177,13 @@ def layout_findings(stage) -> list[Finding]:
         for key in ("toolVersion", "inputSha256", "assetToInput", "params"):
             if key not in cd:
                 add("warning", "Provenance", root.GetPath(), f"customData['leaffit'] lacks '{key}'")
+    return root
 
-    inst_prim = find_instancer(stage)
-    if inst_prim is None:
-        add("error", "Instancer", root.GetPath(), "no PointInstancer with authored "
-            f"{S.ATTR_CONTROLS} under the plant")
-        return out
+
+def _check_instancer(stage, inst_prim, add) -> tuple[list, int]:
+    """The PointInstancer and its ONE template prototype: (Mesh prototype paths, L instances)."""
+    from pxr import Usd, UsdGeom
+
     ip = inst_prim.GetPath()
     inst = UsdGeom.PointInstancer(inst_prim)
     if not inst_prim.HasAPI(S.API_NAME):
@@ -202,6 +223,12 @@ def layout_findings(stage) -> list[Finding]:
         if np.any(np.abs(qn - 1) > 1e-2):
             add("warning", "Orientations", ip, f"{int((np.abs(qn - 1) > 1e-2).sum())} orientations are not unit quaternions")
 
+    return meshes, L
+
+
+def _check_deformer(inst_prim, add) -> int:
+    """The deformer's values (K, sigma, reg ...); returns K, the template's control points."""
+    ip = inst_prim.GetPath()
     controls = inst_prim.GetAttribute(S.ATTR_CONTROLS).Get()
     K_auth = inst_prim.GetAttribute(S.ATTR_K)
     K = len(controls) if controls is not None else 0
@@ -219,6 +246,14 @@ def layout_findings(stage) -> list[Finding]:
         if a and a.Get() is not None and not (np.isfinite(a.Get()) and a.Get() > 0):
             add("error", "DeformerValues", a.GetPath(), f"must be positive, is {a.Get()}")
 
+    return K
+
+
+def _check_targets(inst_prim, L: int, K: int, add) -> None:
+    """The per-instance targets primvar: float3[], vertex, elementSize K, L x K finite values."""
+    from pxr import UsdGeom
+
+    ip = inst_prim.GetPath()
     pv_name = inst_prim.GetAttribute(S.ATTR_TARGETS_PRIMVAR)
     pv_name = str(pv_name.Get()) if pv_name and pv_name.Get() else S.TARGETS_PRIMVAR
     pv = UsdGeom.Primvar(inst_prim.GetAttribute(pv_name))
@@ -238,53 +273,74 @@ def layout_findings(stage) -> list[Finding]:
         elif n and not np.isfinite(np.asarray(tv, np.float64)).all():
             add("error", "TargetsPrimvar", pv.GetAttr().GetPath(), "NaN or inf values")
 
-    # the template mesh
-    if meshes:
-        mp = stage.GetPrimAtPath(meshes[0])
-        mesh = UsdGeom.Mesh(mp)
-        pts = mesh.GetPointsAttr().Get()
-        V = 0 if pts is None else len(pts)
-        counts = mesh.GetFaceVertexCountsAttr().Get()
-        fvi = mesh.GetFaceVertexIndicesAttr().Get()
-        if V == 0 or counts is None or not len(counts):
-            add("error", "TemplateMesh", mp.GetPath(), "the template has no points or faces")
-        else:
-            if np.any(np.asarray(counts) != 3):
-                add("error", "TemplateMesh", mp.GetPath(), "faces must be triangles")
-            f = np.asarray(fvi)
-            if f.size and (f.min() < 0 or f.max() >= V):
-                add("error", "TemplateMesh", mp.GetPath(), f"face indices outside 0..{V - 1}")
-            st = UsdGeom.PrimvarsAPI(mp).GetPrimvar("st")
-            if not st or st.Get() is None or len(st.Get()) != V:
-                add("error", "TemplateMesh", mp.GetPath(), "primvars:st must hold one UV per vertex")
-            if mesh.GetSubdivisionSchemeAttr().Get() != UsdGeom.Tokens.none:
-                add("warning", "TemplateMesh", mp.GetPath(), "subdivisionScheme should be 'none'")
-        bound = {}
-        for sub in UsdGeom.Subset.GetGeomSubsets(mesh, UsdGeom.Tokens.face, "materialBind"):
-            mat, _ = UsdShade.MaterialBindingAPI(sub.GetPrim()).ComputeBoundMaterial()
-            bound[sub.GetPrim().GetName()] = mat
-        for side in ("front", "back"):
-            if not bound.get(side):
-                add("error", "Materials", mp.GetPath(), f"no material bound to the '{side}' face subset")
-            elif not _has_preview_surface(bound[side]):
-                add("error", "Materials", bound[side].GetPath(), "material has no UsdPreviewSurface surface")
-            elif not _reads_st(bound[side]):
-                add("warning", "Materials", bound[side].GetPath(), "no UsdUVTexture read through primvars:st")
-        for p in Usd.PrimRange(root):
-            if p.GetTypeName() == "Shader" and UsdShade.Shader(p).GetIdAttr().Get() == "UsdUVTexture":
-                f = UsdShade.Shader(p).GetInput("file")
-                v = f.Get() if f else None
-                if v is not None and v.path and (v.path.startswith("/") or ":" in v.path.split("/")[0]):
-                    add("warning", "RelativeTextures", f.GetAttr().GetPath(), f"absolute texture path '{v.path}'")
-                if v is not None and v.path and not v.resolvedPath:
-                    add("error", "Textures", f.GetAttr().GetPath(), f"texture '{v.path}' does not resolve")
 
-    # stem: Mesh geometry, never UsdGeom.Cylinder (Blender drops its material)
+def _check_template_mesh(stage, root, mesh_path, add) -> None:
+    """The template Mesh (triangles, UVs), its materials and texture paths."""
+    from pxr import UsdGeom, UsdShade
+
+    mp = stage.GetPrimAtPath(mesh_path)
+    mesh = UsdGeom.Mesh(mp)
+    pts = mesh.GetPointsAttr().Get()
+    V = 0 if pts is None else len(pts)
+    counts = mesh.GetFaceVertexCountsAttr().Get()
+    fvi = mesh.GetFaceVertexIndicesAttr().Get()
+    if V == 0 or counts is None or not len(counts):
+        add("error", "TemplateMesh", mp.GetPath(), "the template has no points or faces")
+    else:
+        if np.any(np.asarray(counts) != 3):
+            add("error", "TemplateMesh", mp.GetPath(), "faces must be triangles")
+        f = np.asarray(fvi)
+        if f.size and (f.min() < 0 or f.max() >= V):
+            add("error", "TemplateMesh", mp.GetPath(), f"face indices outside 0..{V - 1}")
+        st = UsdGeom.PrimvarsAPI(mp).GetPrimvar("st")
+        if not st or st.Get() is None or len(st.Get()) != V:
+            add("error", "TemplateMesh", mp.GetPath(), "primvars:st must hold one UV per vertex")
+        if mesh.GetSubdivisionSchemeAttr().Get() != UsdGeom.Tokens.none:
+            add("warning", "TemplateMesh", mp.GetPath(), "subdivisionScheme should be 'none'")
+    bound = {}
+    for sub in UsdGeom.Subset.GetGeomSubsets(mesh, UsdGeom.Tokens.face, "materialBind"):
+        mat, _ = UsdShade.MaterialBindingAPI(sub.GetPrim()).ComputeBoundMaterial()
+        bound[sub.GetPrim().GetName()] = mat
+    for side in ("front", "back"):
+        if not bound.get(side):
+            add("error", "Materials", mp.GetPath(), f"no material bound to the '{side}' face subset")
+        elif not _has_preview_surface(bound[side]):
+            add("error", "Materials", bound[side].GetPath(), "material has no UsdPreviewSurface surface")
+        elif not _reads_st(bound[side]):
+            add("warning", "Materials", bound[side].GetPath(), "no UsdUVTexture read through primvars:st")
+    _check_textures(root, add)
+
+
+def _check_textures(root, add) -> None:
+    """Every UsdUVTexture's file: relative and resolvable."""
+    from pxr import Usd, UsdShade
+
+    for p in Usd.PrimRange(root):
+        if p.GetTypeName() == "Shader" and UsdShade.Shader(p).GetIdAttr().Get() == "UsdUVTexture":
+            f = UsdShade.Shader(p).GetInput("file")
+            v = f.Get() if f else None
+            if v is not None and v.path and (v.path.startswith("/") or ":" in v.path.split("/")[0]):
+                add("warning", "RelativeTextures", f.GetAttr().GetPath(), f"absolute texture path '{v.path}'")
+            if v is not None and v.path and not v.resolvedPath:
+                add("error", "Textures", f.GetAttr().GetPath(), f"texture '{v.path}' does not resolve")
+
+
+def _check_stem(root, add) -> None:
+    """Stem: Mesh geometry, never UsdGeom.Cylinder (Blender drops its material)."""
+    from pxr import Usd, UsdGeom
+
     for p in Usd.PrimRange(root):
         if p.IsA(UsdGeom.Cylinder):
             add("warning", "StemAsMesh", p.GetPath(), "Cylinder prim: DCCs drop its material; use Mesh")
 
-    # the baked representation, if offered
+
+
+def _check_baked(stage, root, L: int, add) -> None:
+    """The baked representation, if offered: L leaf meshes and the instancer switched off."""
+    from pxr import Usd, UsdGeom
+
+    from leaffit_usd.usd.reader import find_instancer
+
     vset = root.GetVariantSets().GetVariantSet("leafRepresentation")
     if vset and vset.IsValid() and "baked" in vset.GetVariantNames():
         from leaffit_usd.usd.reader import select_representation
@@ -302,7 +358,6 @@ def layout_findings(stage) -> list[Finding]:
                     "PointInstancer active: DCCs would show every leaf twice")
         finally:
             select_representation(stage, original)
-    return out
 
 
 def _has_preview_surface(material) -> bool:

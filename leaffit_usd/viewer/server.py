@@ -165,11 +165,20 @@ def _pack(mask: np.ndarray) -> str:
 
 def create_app(session: ViewerSession, token: str, max_body: int = MAX_BODY, on_stop=None):
     """The flask app serving ``session`` under ``/<token>/``. ``on_stop()`` is called by api/stop."""
-    from flask import Flask, Response, abort, jsonify, request, send_from_directory
+    from flask import Flask
 
     app = Flask("leaffit_usd.viewer", static_folder=None)
     app.config["MAX_CONTENT_LENGTH"] = max_body
     app.json.sort_keys = False
+    _add_guards(app, token, max_body)
+    _add_read_routes(app, session, f"/{token}")
+    _add_edit_routes(app, session, f"/{token}", max_body, on_stop)
+    return app
+
+
+def _add_guards(app, token: str, max_body: int) -> None:
+    """Loopback clients only, the right Host and token, bounded bodies, strict headers."""
+    from flask import abort, jsonify, request
 
     @app.before_request
     def _guard():
@@ -197,25 +206,35 @@ def create_app(session: ViewerSession, token: str, max_body: int = MAX_BODY, on_
     def _user_error(e):
         return jsonify(error=str(e)), 400
 
-    def body() -> dict:
-        raw = request.get_data(cache=False)  # 413 past MAX_CONTENT_LENGTH when the length is declared
-        if len(raw) >= max_body:  # a chunked body is cut at the limit by werkzeug: refuse it too
-            abort(413)
-        try:
-            data = json.loads(raw)
-        except ValueError:
-            data = None
-        if not isinstance(data, dict):
-            abort(400, "expected a JSON object")
-        return data
 
-    def op_of(data):
-        op = data.get("op")
-        if not isinstance(op, dict):
-            abort(400, "expected {\"op\": {...}}")
-        return op
+def _json_body(max_body: int) -> dict:
+    """The request's JSON object (400 otherwise; 413 past ``max_body`` bytes)."""
+    from flask import abort, request
 
-    base = f"/{token}"
+    raw = request.get_data(cache=False)  # 413 past MAX_CONTENT_LENGTH when the length is declared
+    if len(raw) >= max_body:  # a chunked body is cut at the limit by werkzeug: refuse it too
+        abort(413)
+    try:
+        data = json.loads(raw)
+    except ValueError:
+        data = None
+    if not isinstance(data, dict):
+        abort(400, "expected a JSON object")
+    return data
+
+
+def _op_of(data: dict) -> dict:
+    from flask import abort
+
+    op = data.get("op")
+    if not isinstance(op, dict):
+        abort(400, "expected {\"op\": {...}}")
+    return op
+
+
+def _add_read_routes(app, session: ViewerSession, base: str) -> None:
+    """The page, its static files, and the session's meta / points / state."""
+    from flask import Response, abort, jsonify, send_from_directory
 
     @app.get(base + "/")
     def index():
@@ -240,9 +259,14 @@ def create_app(session: ViewerSession, token: str, max_body: int = MAX_BODY, on_
         with session.lock:
             return jsonify(session.state())
 
+
+def _add_edit_routes(app, session: ViewerSession, base: str, max_body: int, on_stop) -> None:
+    """Picking, previews, operations, undo / redo, save, stop."""
+    from flask import abort, jsonify
+
     @app.post(base + "/api/pick")
     def pick():
-        data = body()
+        data = _json_body(max_body)
         try:
             o = np.asarray(data["origin"], np.float64).reshape(3)
             d = np.asarray(data["direction"], np.float64).reshape(3)
@@ -256,7 +280,7 @@ def create_app(session: ViewerSession, token: str, max_body: int = MAX_BODY, on_
 
     @app.post(base + "/api/preview")
     def preview():
-        op = op_of(body())
+        op = _op_of(_json_body(max_body))
         t0 = time.perf_counter()
         with session.lock:
             sel = session.segmenter.preview(op)
@@ -264,7 +288,7 @@ def create_app(session: ViewerSession, token: str, max_body: int = MAX_BODY, on_
 
     @app.post(base + "/api/op")
     def apply_op():
-        op = op_of(body())
+        op = _op_of(_json_body(max_body))
         t0 = time.perf_counter()
         with session.lock:
             session.segmenter.apply(op, op_no=len(session.segmenter.operations))
@@ -296,8 +320,6 @@ def create_app(session: ViewerSession, token: str, max_body: int = MAX_BODY, on_
         if on_stop is not None:
             threading.Thread(target=on_stop, daemon=True).start()
         return jsonify(stopping=True)
-
-    return app
 
 
 STATIC_FILES = {
