@@ -28,14 +28,19 @@ def _digests(folder):
 def test_two_conversions_identical_bytes_across_thread_counts(tmp_path):
     from samples.generate import PlantSpec, make_plant, save_plant
 
+    from leaffit_usd.fit.params import FitParams
+    from leaffit_usd.mesh.template import MeshParams
     from leaffit_usd.pipeline import ConvertOptions, convert
+    from leaffit_usd.segment.auto import SegmentParams
+    from leaffit_usd.usd.writer import WriteOptions
 
     cloud, gt = make_plant(PlantSpec(kind="elliptic", leaves=3, gaussians=4000, holes=0.0,
                                      floaters=0.0, height=0.5), seed=7)
     ply, _ = save_plant(cloud, gt, tmp_path / "in", "plant")
-    opts = ConvertOptions(fit={"K": 12, "steps": 8, "refine": 2},
-                          segment={"n_samples": 1024, "n_neighbors": 128},
-                          mesh={"vertex_budget": 256, "texture_size": 128}, texture_size=128)
+    opts = ConvertOptions(fit=FitParams(K=12, steps=8, refine=2),
+                          segment=SegmentParams(n_samples=1024, n_neighbors=128),
+                          mesh=MeshParams(vertex_budget=256, texture_size=128),
+                          write=WriteOptions(texture_max_size=128))
     saved = torch.get_num_threads()
     reports, digests = [], []
     try:
@@ -60,7 +65,7 @@ def test_torch_numerics_run_single_threaded(monkeypatch):
     """fit_leaves and the texture-bake renderer run with 1 torch thread whatever the caller set,
     and give the caller's setting back."""
     import leaffit_usd.fit.register as reg
-    from leaffit_usd.fit.synthetic import make_plant
+    from samples.synthetic.fit import make_plant
     from leaffit_usd.splats import render
 
     seen = []
