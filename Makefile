@@ -7,8 +7,10 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DEMO_IN  ?= samples/plants/rubber_tree.ply
 DEMO_OUT ?= out/demo
+# the sample plants are generated here, not kept in git (deterministic: same bytes every time)
+SAMPLES  := samples/plants/.generated
 
-.PHONY: demo test setup bench clean dcc-check
+.PHONY: demo test setup samples bench clean dcc-check
 
 setup: $(STAMP)
 
@@ -19,13 +21,19 @@ $(STAMP): pyproject.toml scripts/setup_system.sh
 	$(PY) -m pip install -q -e '.[dev,formats]'
 	touch $(STAMP)
 
-demo: $(STAMP)
+$(SAMPLES): $(STAMP) samples/generate.py samples/leaves.py
+	$(PY) -m samples.generate --committed --out samples/plants -q
+	touch $(SAMPLES)
+
+samples: $(SAMPLES)
+
+demo: $(STAMP) $(SAMPLES)
 	$(PY) -m leaffit_usd.demo $(DEMO_IN) $(DEMO_OUT)
 
-test: $(STAMP)
+test: $(STAMP) $(SAMPLES)
 	$(PY) -m pytest -q -p no:cacheprovider
 
-bench: $(STAMP)
+bench: $(STAMP) $(SAMPLES)
 	$(PY) benchmarks/run_all.py
 
 clean:

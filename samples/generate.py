@@ -1117,8 +1117,9 @@ def benchmark_suite(gaussians: int = 100_000) -> list[tuple[str, PlantSpec, int]
     ]
 
 
-#: The committed sample plants: name -> (spec, seed). Regenerate with
-#: ``python -m samples.generate --committed``.
+#: The sample plants of the demo and the tests: name -> (spec, seed). Not in git: ``make``
+#: generates them at set-up (``python -m samples.generate --committed --out samples/plants``;
+#: ``samples.ensure_plants()`` makes the missing ones).
 def committed_plants() -> dict[str, tuple[PlantSpec, int]]:
     return {
         "rubber_tree": (preset("rubber_tree", gaussians=60_000, sh_degree=0), 1),

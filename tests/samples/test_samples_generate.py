@@ -10,7 +10,7 @@ import open3d as o3d
 
 from leaffit_usd.splats.frame import Frame
 from leaffit_usd.splats.ply import read_ply
-from samples import PLANTS_DIR
+from samples import PLANTS_DIR, ensure_plants
 from samples.generate import (GroundTruth, PlantSpec, benchmark_suite, committed_plants,
                               load_ground_truth, main, make_plant, preset, save_plant)
 
@@ -264,6 +264,7 @@ def test_cli_writes_plant(tmp_path, capsys):
 
 @pytest.mark.parametrize("name", sorted(committed_plants()))
 def test_committed_plant_matches_its_ground_truth(name):
+    ensure_plants()
     ply = PLANTS_DIR / f"{name}.ply"
     gtp = PLANTS_DIR / f"{name}.gt.npz"
     assert ply.stat().st_size < MAX_PLY_BYTES and gtp.stat().st_size < MAX_GT_BYTES

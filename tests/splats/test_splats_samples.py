@@ -1,6 +1,4 @@
-"""Round trips and frame helpers on every committed sample plant (samples/plants/*.ply)."""
-from pathlib import Path
-
+"""Round trips and frame helpers on every sample plant (samples/plants/*.ply, generated at set-up)."""
 import numpy as np
 import pytest
 
@@ -9,8 +7,15 @@ from leaffit_usd.splats.root import resolve_root
 from leaffit_usd.splats.up_axis import estimate_up_with_confidence
 from leaffit_usd.splats.usd_io import write_usd_splats
 
-PLANTS = sorted((Path(__file__).resolve().parents[2] / "samples" / "plants").glob("*.ply"))
-pytestmark = pytest.mark.skipif(not PLANTS, reason="no committed sample plants")
+from samples import PLANTS_DIR, ensure_plants
+from samples.generate import committed_plants
+
+PLANTS = [PLANTS_DIR / f"{name}.ply" for name in sorted(committed_plants())]
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _plants():
+    ensure_plants()
 
 
 @pytest.mark.parametrize("path", PLANTS, ids=lambda p: p.stem)
