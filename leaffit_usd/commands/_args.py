@@ -113,11 +113,15 @@ def add_segment_arguments(p, title="segmentation (paper defaults, working units:
     g.add_argument("--orientation", action="store_true",
                    help="orientation-aware geodesics: no short-cut between a Gaussian and points off its "
                         "tangent plane (a leaf lying on another); off by default")
+    g.add_argument("--method", choices=("blades", "apex"),
+                   help="blades (default): leaves are sheets and the stem tubes, told apart by the "
+                        "Gaussians' normals (leaffit_usd.segment.blades); apex: the paper's apex -> "
+                        "tree -> petiole march with our fixes (the N_s ... rho options apply to it)")
     g.add_argument("--paper-rules", action="store_true",
-                   help="the paper's rules exactly where ours differ: all N_k Euclidean neighbours "
-                        "vote in the apex test, no blade-first / base refinement / LCA-on-blade "
-                        "rules, absolute tau only (no relative lobe grouping), epsilon alone for the "
-                        "petiole, blade-less instances kept (see leaffit_usd.segment.auto)")
+                   help="the paper's algorithm exactly: the apex method with all N_k Euclidean "
+                        "neighbours voting in the apex test, no blade-first / base refinement / "
+                        "LCA-on-blade rules, absolute tau only, epsilon alone for the petiole, "
+                        "blade-less instances kept (see leaffit_usd.segment.auto)")
     return g
 
 
@@ -134,9 +138,17 @@ def _segment_overrides(args) -> dict:
     kw = {k: getattr(args, k) for k in SEGMENT_FIELDS if getattr(args, k, None) is not None}
     if getattr(args, "orientation", False):
         kw["orientation_aware"] = True
+    if getattr(args, "method", None):
+        kw["method"] = args.method
     if getattr(args, "paper_rules", False):
-        kw.update(apex_surface_neighbors=False, blade_first=False, base_refine=False,
-                  lca_on_blade=False, require_blade=False, tau_relative=0.0, petiole_relative=0.0)
+        from dataclasses import fields
+
+        from leaffit_usd.segment.auto import SegmentParams
+
+        paper = SegmentParams.paper()
+        base = SegmentParams()
+        kw.update({f.name: getattr(paper, f.name) for f in fields(SegmentParams)
+                   if getattr(paper, f.name) != getattr(base, f.name)})
     return kw
 
 

@@ -26,6 +26,8 @@ Output (.npz, one row per Gaussian of the INPUT FILE, in file order):
                 tree_nodes, -1 at the root; leaf label of each node, 0 = stem)
   dist_root     float32 geodesic distance from the root, working units (plant height 1;
                 NaN for Gaussians dropped at load, inf where unreachable)
+  confidence    float64 per leaf in [0, 1]: how sure the segmentation is of each leaf (leaves
+                under 0.5 are worth a look in 'leaffit-usd edit')
   input_to_working   4x4, the frame the parameters are measured in; params: JSON string
 
 Parameters are the paper's, in working units (root at 0, +Z up, plant height 1).
@@ -109,12 +111,17 @@ def run(args) -> int:
         "dist_root": dist,
         "input_to_working": frame.input_to_working,
         "params": np.array(json.dumps(seg.params)),
+        "confidence": np.asarray(seg.confidence, np.float64),
     }
     with atomic_path(args.output) as tmp:
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, **out)
     log.info("%d leaves, %d apexes, %d of %d Gaussians on leaves -> %s", seg.n_leaves,
              len(seg.apex_indices), int((seg.labels > 0).sum()), len(seg.labels), args.output)
+    doubtful = [i + 1 for i, c in enumerate(np.asarray(seg.confidence)) if c < 0.5]
+    if doubtful:
+        log.info("leaves to check (confidence < 0.5): %s; 'leaffit-usd edit' opens on the least "
+                 "confident", ", ".join(map(str, doubtful)))
     if args.preview:
         from leaffit_usd.segment.preview import write_preview
 
@@ -126,6 +133,7 @@ def run(args) -> int:
         rep = {"input": str(args.input), "gaussians": len(cloud), "file_gaussians": int(cloud.file_count),
                "leaves": seg.n_leaves, "apexes": int(len(seg.apex_indices)),
                "leaf_sizes": np.bincount(seg.labels, minlength=seg.n_leaves + 1)[1:].tolist(),
+               "confidence": [round(float(c), 4) for c in seg.confidence],
                "timings": {"read": t_read, "segment_total": t_seg, **timings}, "params": seg.params,
                "frame": frame.to_dict(), "root_index": int(fi[seg.root_index])}
         atomic_write_bytes(args.report, json.dumps(rep, indent=1).encode())

@@ -95,6 +95,9 @@ from leaffit_usd.segment.result import Segmentation
 log = logging.getLogger("leaffit_usd")
 
 
+METHODS = ("blades", "apex")
+
+
 @dataclass
 class SegmentParams:
     """Parameters of the automatic segmentation; paper defaults, working units (plant height 1).
@@ -141,6 +144,26 @@ class SegmentParams:
         diameter under this fraction of the widest diameter seen so far on the leaf's march, so a
         blade about epsilon wide (long-thin leaves, narrow lobes) is not cut on itself
     seed : seed of the random domain subset
+
+    method : "blades" (ours, the default: sheets and tubes from the Gaussians' normals, see
+        :mod:`leaffit_usd.segment.blades`) or "apex" (the paper's apex -> tree -> petiole march,
+        with the deviations above; ``SegmentParams.paper()`` turns those off too)
+    The blades method's own parameters (working units; ignored by "apex"):
+    domain_points : uniform (voxel) subsample the surface graph is built on (25000)
+    graph_k : nearest neighbours joined in the surface graph (10)
+    stalk_radius : radius of the normal tensor of the tube test (0.015: a stem or petiole up to
+        about this diameter turns its normals through a half circle within it; a leaf blade curved
+        less than ~1.3x this radius does not)
+    stalk_ratio : a point is a tube where the tensor's second eigenvalue exceeds this fraction of
+        its first (0.3: a sheet gives ~0, normals around a tube ~1, a 90-degree fold ~0.2)
+    tangent_sin : a sheet edge leaves neither end's tangent plane by more than asin(this) (0.5, 30 deg)
+    normal_cos : and joins normals at most acos(this) apart (0.87, 30 deg)
+    tube_ratio : a found leaf whose normals over the whole leaf exceed this ratio is a stem piece
+        (0.65)
+    palm_fraction : two branches of one blade that merge with less than this fraction of their
+        size below the saddle are two leaves met at their bases (0.15)
+    min_leaf_fraction : smallest leaf, as a fraction of the domain points (0.002)
+    attach_link : attachment points within this many median spacings are one stalk's entry (3.0)
     """
 
     n_samples: int = 8192
@@ -163,6 +186,26 @@ class SegmentParams:
     tau_relative: float = 0.1
     petiole_relative: float = 0.5
     seed: int = 0
+    method: str = "blades"
+    domain_points: int = 25000
+    graph_k: int = 10
+    stalk_radius: float = 0.015
+    stalk_ratio: float = 0.3
+    tangent_sin: float = 0.5
+    normal_cos: float = 0.87
+    tube_ratio: float = 0.65
+    palm_fraction: float = 0.15
+    min_leaf_fraction: float = 0.002
+    attach_link: float = 3.0
+
+    @classmethod
+    def paper(cls, **overrides) -> "SegmentParams":
+        """The paper's algorithm exactly: the apex method with every deviation of ours off."""
+        kw = dict(method="apex", apex_surface_neighbors=False, blade_first=False, base_refine=False,
+                  lca_on_blade=False, require_blade=False, orientation_aware=False, tau_relative=0.0,
+                  petiole_relative=0.0)
+        kw.update(overrides)
+        return cls(**kw)
 
     def validate(self) -> "SegmentParams":
         ints = {"n_samples": 2, "n_neighbors": 1, "geodesic_points": 0, "fps_candidates": 0}
@@ -184,6 +227,21 @@ class SegmentParams:
                 raise ParameterError(name, "a fraction in [0, 1) (0 disables)", v)
         if not (0 <= self.rho < 1):
             raise ParameterError("rho", "a fraction in [0, 1)", self.rho)
+        if self.method not in METHODS:
+            raise ParameterError("method", " or ".join(METHODS), self.method)
+        for name, lo in {"domain_points": 100, "graph_k": 3}.items():
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or v < lo:
+                raise ParameterError(name, f"an integer >= {lo}", v)
+        for name in ("stalk_radius", "attach_link"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise ParameterError(name, "a positive number", v)
+        for name in ("stalk_ratio", "tangent_sin", "normal_cos", "tube_ratio", "palm_fraction",
+                     "min_leaf_fraction"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0 <= v <= 1):
+                raise ParameterError(name, "a number in [0, 1]", v)
         return self
 
 
@@ -232,6 +290,8 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
     inlier[root] = True
     if (~inlier).any():
         log.info("%d isolated Gaussians (floaters) left out of the segmentation", int((~inlier).sum()))
+    if p.method == "blades":
+        return _segment_blades(pts, root, inlier, normals, p, tm, t0)
     pool = np.flatnonzero(inlier)
     if len(pool) > p.fps_candidates > 0:  # FPS cost is O(N N_s): run it on a random subset
         pool = np.union1d(rng.choice(pool, p.fps_candidates, replace=False), [root])
@@ -415,6 +475,33 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
     log.info("segmentation: %d apexes, %d leaves (%.2f s)", A, int(labels.max(initial=0)), tm["total"])
     return _result(n, root, solver.domain, tree, apex_g, apex_labels, leaf_tip, leaf_base, labels,
                    d_root, seg_params)
+
+
+def _segment_blades(pts, root, inlier, normals, p: SegmentParams, tm: dict, t0: float) -> Segmentation:
+    """The default method (:mod:`leaffit_usd.segment.blades`), packed as a Segmentation."""
+    from leaffit_usd.segment.blades import segment_blades
+
+    res = segment_blades(pts, root, inlier, normals, p, tm)
+    labels = res.labels.copy()
+    d_root = res.d_root.copy()
+    reach = np.isfinite(d_root) | ~inlier
+    lost = int((~np.isfinite(d_root) & inlier).sum())
+    if lost:
+        (log.warning if lost > 0.005 * len(pts) else log.info)(
+            "the cloud is disconnected: %d of %d Gaussians are not connected to the root and stay "
+            "unassigned", lost, len(pts))
+    if (~inlier).any() and inlier.sum() > 1:
+        _attach_outliers(pts, labels, d_root, inlier, reach, p)
+    n_leaves = len(res.leaf_tip)
+    tree_leaf = labels[res.tree_nodes].astype(np.int32)
+    tm["total"] = time.perf_counter() - t0
+    log.info("segmentation: %d leaves (%.2f s)", n_leaves, tm["total"])
+    return Segmentation(
+        labels=labels.astype(np.int32), root_index=int(root), apex_indices=res.leaf_tip.astype(np.int64),
+        apex_labels=np.arange(1, n_leaves + 1, dtype=np.int32), leaf_tip=res.leaf_tip.astype(np.int64),
+        leaf_base=res.leaf_base.astype(np.int64), tree_nodes=res.tree_nodes.astype(np.int64),
+        tree_parent=res.tree_parent.astype(np.int64), tree_leaf=tree_leaf,
+        dist_root=d_root.astype(np.float32), params=asdict(p), confidence=res.confidence)
 
 
 def _surface_filter(solver, samples, cand, nbrs, dists):

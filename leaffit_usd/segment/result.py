@@ -20,6 +20,9 @@ class Segmentation:
     tree_parent : (S,) int64, index into tree_nodes of each node's parent (-1 for the root)
     tree_leaf : (S,) int32, leaf label a tree node lies in (0 = stem part of the tree)
     dist_root : (N,) float32, heat-method geodesic distance from the root, working units
+    confidence : (L,) float64 in [0, 1], how sure the segmentation is of leaf l+1 (see
+        :func:`leaffit_usd.segment.blades.leaf_confidence`; 1 for every leaf when the method gives
+        none, e.g. the paper's apex method or labels read from a file)
     params : the parameters used (N_s, N_k, tau, delta, epsilon, rho, ...)
     """
 
@@ -34,6 +37,11 @@ class Segmentation:
     tree_leaf: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     dist_root: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
     params: dict = field(default_factory=dict)
+    confidence: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.confidence is None:
+            self.confidence = np.ones(self.n_leaves, np.float64)
 
     @property
     def n_leaves(self) -> int:
