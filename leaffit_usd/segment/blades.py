@@ -69,6 +69,9 @@ from leaffit_usd.geometry.heat import GeodesicSolver, voxel_subsample
 log = logging.getLogger("leaffit_usd")
 
 SPLIT_CONFIDENCE = 0.6   # confidence factor of a leaf cut from a larger blade
+# wider tube tests (radius factor, ratio): a thick stem turns its normals through >= ~120 degrees
+# within twice, and >= ~150 degrees within four times the radius; a leaf blade does not
+TUBE_WIDE = ((2, 0.5), (4, 0.7))
 
 
 @dataclass
@@ -156,14 +159,31 @@ def normal_tensor_ratio(normals: np.ndarray) -> float:
     return float(ev[1] / max(ev[2], 1e-12))
 
 
-def tube_mask(g: SurfaceGraph, params) -> np.ndarray:
-    """Step 2 (before the root test): (M,) bool, True where the surface is a tube at
-    ``stalk_radius`` (unsmoothed; see :func:`smooth_mask`)."""
-    w = (g.dists <= params.stalk_radius).astype(np.float64)
-    nn = g.normals[g.neighbors]
+def _tensor_ratio_within(points, normals, queries, radius, k=64) -> np.ndarray:
+    """(Q,) second / first eigenvalue of ``mean n n^T`` over the (up to ``k`` nearest) ``points``
+    within ``radius`` of each of ``queries`` ((Q, 3))."""
+    d, nb = cKDTree(points).query(queries, k=int(min(k, len(points))), workers=-1)
+    d, nb = d.reshape(len(queries), -1), nb.reshape(len(queries), -1)
+    w = (d <= radius).astype(np.float64)
+    nn = normals[nb]
     t = np.einsum("mk,mki,mkj->mij", w, nn, nn) / np.maximum(w.sum(1), 1)[:, None, None]
     ev = np.linalg.eigvalsh(t)
-    return ev[:, 1] > params.stalk_ratio * np.maximum(ev[:, 2], 1e-12)
+    return ev[:, 1] / np.maximum(ev[:, 2], 1e-12)
+
+
+def tube_mask(g: SurfaceGraph, params) -> np.ndarray:
+    """Step 2 (before the root test): (M,) bool, True where the surface is a tube: the normal
+    tensor's eigenvalue ratio exceeds ``stalk_ratio`` within ``stalk_radius``, or the stricter
+    ``TUBE_WIDE`` ratios within larger radii (a stem thicker than ``stalk_radius`` is locally
+    flat at that radius; the wide tests run on a coarser subsample so that 64 neighbours reach
+    that far). Unsmoothed; see :func:`smooth_mask`."""
+    tube = _tensor_ratio_within(g.points, g.normals, g.points, params.stalk_radius) > params.stalk_ratio
+    for factor, ratio in TUBE_WIDE:
+        coarse = voxel_subsample(g.points, max(64, g.size // (factor * factor)))
+        wide = _tensor_ratio_within(g.points[coarse], g.normals[coarse], g.points,
+                                    factor * params.stalk_radius) > ratio
+        tube |= wide
+    return tube
 
 
 def smooth_mask(graph: csr_matrix, mask: np.ndarray, rounds: int = 2) -> np.ndarray:
@@ -177,14 +197,25 @@ def smooth_mask(graph: csr_matrix, mask: np.ndarray, rounds: int = 2) -> np.ndar
     return tube
 
 
-def rooted_stem(graph: csr_matrix, tube: np.ndarray, d_root: np.ndarray) -> np.ndarray:
-    """Step 2: (M,) bool, the tube points connected (through tube points of ``graph``) to the tube
-    point of least ``D_r``; other tube-like spots (a curled blade's) are not stem."""
-    cand = np.flatnonzero(tube & np.isfinite(d_root))
-    if not len(cand):
-        return np.zeros(len(tube), bool)
-    _, comp = connected_components(_restrict(graph, tube), directed=False)
-    return tube & (comp == comp[cand[np.argmin(d_root[cand])]])
+def rooted_stem(g: SurfaceGraph, tube: np.ndarray, d_root: np.ndarray, link: float,
+                min_size: int) -> np.ndarray:
+    """Step 2: (M,) bool, the stem: of the pieces of tube points (tube points at most ``link``
+    apart are one piece, so a stem whose tube test drops out for a moment stays one piece) with
+    at least ``min_size`` points, the one reaching lowest in ``D_r``. Other tube-like spots (a
+    curled blade's) are not stem."""
+    idx = np.flatnonzero(tube & np.isfinite(d_root))
+    out = np.zeros(len(tube), bool)
+    if not len(idx):
+        return out
+    pairs = cKDTree(g.points[idx]).query_pairs(link, output_type="ndarray")
+    n, comp = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
+                                              shape=(len(idx), len(idx))), directed=False)
+    size = np.bincount(comp, minlength=n)
+    low = np.full(n, np.inf)
+    np.minimum.at(low, comp, d_root[idx])
+    low[size < min(min_size, size.max())] = np.inf
+    out[idx[comp == int(np.argmin(low))]] = True
+    return out
 
 
 def _attachment_groups(g: SurfaceGraph, members, attached, link) -> list:
@@ -200,20 +231,30 @@ def _attachment_groups(g: SurfaceGraph, members, attached, link) -> list:
     return [a[lab == i] for i in range(n) if counts[i] >= 2]
 
 
-def split_at_narrow_saddles(nodes, dist, graph, min_size, palm):
+def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
     """Step 4: leaves of one blade piece by the merge tree of the superlevel sets of ``dist``.
 
     nodes : (k,) graph indices of the piece; dist : (k,) distance from its attachment;
-    graph : the sheet graph. Returns (list of (k_i,) node arrays, one per leaf; (r,) leftover
-    nodes: junctions and branches below ``min_size``, assigned to the nearest leaf later).
+    graph : the sheet graph; normals : (M, 3) of the graph's points. Two branches of at least
+    ``min_size`` points that merge are cut apart (each frozen as a leaf) when
+
+    * less than ``params.palm_fraction`` of their size lies below the saddle (they meet at their
+      bases: leaflets at the end of a rachis), or
+    * exactly one of them is a tube (normal tensor ratio above ``params.tube_ratio``): a leaf
+      meeting a stem too thick to pass the local tube test; the tube branch goes on.
+
+    Returns (list of (k_i,) node arrays, one per leaf; (r,) leftover nodes: junctions and branches
+    below ``min_size``, assigned to the nearest leaf later).
     """
     k = len(nodes)
     local = -np.ones(graph.shape[0], np.int64)
     local[nodes] = np.arange(k)
     order = np.argsort(-dist, kind="stable")
     below_sorted = np.sort(dist)
+    nn = np.einsum("ki,kj->kij", normals[nodes], normals[nodes])
     parent = np.arange(k)
     free: dict = {}
+    tensor: dict = {}
     seen = np.zeros(k, bool)
     leaves = []
 
@@ -223,10 +264,18 @@ def split_at_narrow_saddles(nodes, dist, graph, min_size, palm):
             x = parent[x]
         return x
 
+    def is_tube(x):
+        ev = np.linalg.eigvalsh(tensor[x] / len(free[x]))
+        return ev[1] > params.tube_ratio * max(ev[2], 1e-12)
+
+    def freeze(x):
+        leaves.append(np.asarray(free[x]))
+        free[x], tensor[x] = [], np.zeros((3, 3))
+
     indptr, indices = graph.indptr, graph.indices
     for v in order.tolist():
         seen[v] = True
-        free[v] = [v]
+        free[v], tensor[v] = [v], nn[v].copy()
         nb = local[indices[indptr[nodes[v]]:indptr[nodes[v] + 1]]]
         nb = nb[nb >= 0]
         for r in sorted({find(u) for u in nb[seen[nb]].tolist()} - {v}):
@@ -234,15 +283,18 @@ def split_at_narrow_saddles(nodes, dist, graph, min_size, palm):
             if a == r:
                 continue
             if len(free[a]) >= min_size and len(free[r]) >= min_size:
-                below = int(np.searchsorted(below_sorted, dist[v]))
-                if below < palm * (len(free[a]) + len(free[r])):  # met at their bases
-                    leaves += [np.asarray(free[a]), np.asarray(free[r])]
-                    free[a], free[r] = [], []
+                ta, tr = is_tube(a), is_tube(r)
+                if ta != tr:  # a sheet meets a tube: the sheet is a leaf
+                    freeze(r if ta else a)
+                elif int(np.searchsorted(below_sorted, dist[v])) < params.palm_fraction * (
+                        len(free[a]) + len(free[r])):  # met at their bases: two leaves
+                    freeze(a), freeze(r)
             if len(free[a]) < len(free[r]):
                 a, r = r, a
             parent[r] = a
             free[a].extend(free[r])
-            del free[r]
+            tensor[a] = tensor[a] + tensor[r]
+            del free[r], tensor[r]
     rest = []
     for f in free.values():
         (leaves.append(np.asarray(f)) if len(f) >= min_size else rest.extend(f))
@@ -288,7 +340,7 @@ def find_leaves(g: SurfaceGraph, sheet: csr_matrix, stem: np.ndarray, d_root: np
                 rest.append(piece)
                 continue
             lv, left = split_at_narrow_saddles(piece, np.where(np.isfinite(pd), pd, 0.0), gb,
-                                               min_size, params.palm_fraction)
+                                               g.normals, params, min_size)
             leaves += lv
             split += [len(groups) > 1 or len(lv) > 1] * len(lv)
             rest.append(left)
@@ -369,7 +421,8 @@ def segment_blades(pts: np.ndarray, root: int, inlier: np.ndarray, normals, para
     raw = tube_mask(g, params)
     sheet = sheet_edges(g, raw, params)
     tube = smooth_mask(sheet, raw)
-    stem = rooted_stem(sheet, tube, d_root)
+    stem = rooted_stem(g, tube, d_root, params.attach_link * float(np.median(g.spacing)),
+                       max(20, int(params.min_leaf_fraction * g.size)))
     found = find_leaves(g, sheet, stem, d_root, params)
     conf = leaf_confidence(g, found)
     timings["leaves"] = time.perf_counter() - t
