@@ -30,7 +30,12 @@ Defaults: next to INPUT as <stem>.edits.json and <stem>.labels.npz. Stop with Ct
 
 The session starts from --labels, or else from the automatic segmentation exactly as
 'convert' computes it (same --up/--root, paper defaults), so 'convert INPUT --edits EDITS.json'
-(with the same --labels, if any) reproduces the saved labels."""
+(with the same --labels, if any) reproduces the saved labels.
+
+Confidence: the automatic segmentation gives each leaf a confidence in [0, 1] (so does a labels
+file written by 'segment', in its 'confidence' array). The page lists it beside each leaf, marks
+the doubtful leaves (confidence < 0.5) with '?', and opens on the least confident one (checked,
+camera on it); 'Next doubtful' (key N) goes through the others. The terminal lists them too."""
 ORDER = 25
 
 log = logging.getLogger("leaffit_usd")
@@ -58,38 +63,66 @@ def add_arguments(p) -> None:
     add_frame_arguments(p)  # for the automatic segmentation the session starts from (as in convert)
 
 
-def read_labels_file(path, cloud) -> tuple[np.ndarray, int | None]:
-    """Labels (cloud order, int32) and root index (cloud order or None) from a segmentation .npz.
+def read_labels_file(path, cloud) -> tuple[np.ndarray, int | None, np.ndarray | None]:
+    """(labels, root index, confidence) from a segmentation .npz.
 
-    Labels are read exactly as ``convert --labels`` reads them (``pipeline.load_labels``:
-    negative = unassigned, leaves renumbered 1..L), so edits replay on the same starting labels.
-    ``root_index`` (file order) is taken from the file when present (array or ``__json__``).
+    labels : (N,) int32, cloud order, read exactly as ``convert --labels`` reads them
+        (``pipeline.load_labels``: negative = unassigned, leaves renumbered 1..L), so edits
+        replay on the same starting labels;
+    root index : cloud order or None, from the file's ``root_index`` (file order; array or
+        ``__json__``) when present;
+    confidence : (L,) float64 in [0, 1] for the renumbered leaves, or None. Taken from the
+        file's ``confidence`` array (leaf l+1 of the file at index l, as ``segment`` writes it)
+        when it has one value in [0, 1] per file leaf; otherwise ignored with a warning.
     """
     import json
 
     from leaffit_usd.pipeline import load_labels
 
     labels = load_labels(path, cloud)
-    root = None
+    root = raw = conf = None
     try:
         with np.load(path, allow_pickle=False) as z:
+            raw = np.asarray(z["labels"])
             if "root_index" in z.files:
                 root = int(z["root_index"])
             elif "__json__" in z.files:
                 root = json.loads(str(z["__json__"])).get("root_index")
-    except (OSError, ValueError, TypeError):
+            if "confidence" in z.files:
+                conf = np.asarray(z["confidence"])
+    except (OSError, ValueError, TypeError, KeyError):
         root = None
     root_cloud = None
     if root is not None and 0 <= int(root) < cloud.file_count:
         hit = np.flatnonzero(cloud.file_index == int(root))
         root_cloud = int(hit[0]) if hit.size else None
-    return labels, root_cloud
+    return labels, root_cloud, _file_confidence(path, conf, raw, cloud)
+
+
+def _file_confidence(path, conf, raw, cloud) -> np.ndarray | None:
+    """A labels file's per-leaf confidence mapped onto the renumbered leaves, or None."""
+    if conf is None or raw is None:
+        return None
+    n_file = int(raw.max(initial=0))
+    if conf.ndim != 1 or conf.dtype.kind not in "fiu" or len(conf) != n_file:
+        log.warning("edit: %s: ignoring its 'confidence' (%s %s; expected %d values, one per leaf)",
+                    path, conf.dtype, conf.shape, n_file)
+        return None
+    conf = conf.astype(np.float64)
+    if not np.all((conf >= 0) & (conf <= 1)):
+        log.warning("edit: %s: ignoring its 'confidence' (values outside [0, 1])", path)
+        return None
+    present = raw[np.asarray(cloud.file_index)]
+    kept = np.unique(present[present > 0])  # file leaf of renumbered leaf 1..L (load_labels' order)
+    return conf[kept - 1]
 
 
 def automatic_labels(cloud, up="auto", root="auto", root_index=None):
-    """(labels (N,) int32 cloud order, root index, Frame) from the automatic segmentation, as convert does.
+    """(labels, root index, Frame, confidence) from the automatic segmentation, as convert does.
 
     up, root : the --up / --root strings ("auto", "+y", "X,Y,Z" ...); root_index : --root-index.
+    labels : (N,) int32, cloud order; confidence : (L,) float64 in [0, 1] per leaf (the
+    Segmentation's), or None when the segmentation failed (then every Gaussian is unassigned).
     """
     from leaffit_usd.pipeline import auto_segment
     from leaffit_usd.segment.auto import SegmentParams
@@ -101,14 +134,22 @@ def automatic_labels(cloud, up="auto", root="auto", root_index=None):
     choice = make_frame(cloud, up=_args.parse_up(up), root=_args.parse_root(root),
                         root_index=root_index)  # bad --up/--root: an error
     cw = transform_cloud(cloud, choice.frame.input_to_working)
+    conf = None
     try:
-        labels = np.asarray(auto_segment(cw, choice.root_index, SegmentParams()).labels, np.int32)
+        seg = auto_segment(cw, choice.root_index, SegmentParams())
+        labels = np.asarray(seg.labels, np.int32)
         log.info("edit: %d leaves found", int(labels.max(initial=0)))
+        if seg.confidence is not None:
+            conf = np.asarray(seg.confidence, np.float64)
+            if conf.shape != (int(labels.max(initial=0)),):
+                log.warning("edit: the segmentation gave %d confidences for %d leaves; not shown",
+                            conf.size, int(labels.max(initial=0)))
+                conf = None
     except UserError as e:  # a plant the automatic method cannot handle is what edit is for
         log.warning("edit: automatic segmentation failed (%s); starting with every Gaussian "
                     "unassigned", e)
         labels = np.zeros(len(cloud), np.int32)
-    return labels, int(choice.root_index), choice.frame
+    return labels, int(choice.root_index), choice.frame, conf
 
 
 def _open_browser(url: str) -> None:
@@ -119,6 +160,26 @@ def _open_browser(url: str) -> None:
     if not graphical:
         return
     threading.Thread(target=webbrowser.open, args=(url,), daemon=True).start()
+
+
+def doubtful_lines(session) -> list[str]:
+    """What the terminal says at start about the leaves' confidence (empty when there is none)."""
+    from leaffit_usd.segment.result import DOUBTFUL_CONFIDENCE
+    from leaffit_usd.viewer.server import least_confident
+
+    rows, _ = session.leaves()
+    known = [r for r in rows if r["confidence"] is not None]
+    if not known:
+        return []
+    least = least_confident(rows)
+    doubtful = sorted((r for r in known if r["doubtful"]), key=lambda r: (r["confidence"], r["label"]))
+    if doubtful:
+        listed = ", ".join(f"{r['label']} ({r['confidence']:.2f})" for r in doubtful)
+        return [f"leaffit-usd edit: leaves to check (confidence < {DOUBTFUL_CONFIDENCE:g}): {listed}; "
+                f"the page opens on leaf {least}"]
+    low = min(known, key=lambda r: (r["confidence"], r["label"]))
+    return [f"leaffit-usd edit: no doubtful leaf (all {len(known)} with confidence >= {DOUBTFUL_CONFIDENCE:g}; "
+            f"lowest: leaf {low['label']}, {low['confidence']:.2f})"]
 
 
 def _interrupt(*_):
@@ -139,15 +200,15 @@ def run(args) -> int:
         raise ParameterError("--empty", "not together with --labels", True)
     inp = Path(args.input)
     cloud = load_cloud(inp)
-    frame = None
+    frame = conf = None
     if args.labels:
-        labels, root = read_labels_file(args.labels, cloud)
+        labels, root, conf = read_labels_file(args.labels, cloud)
     elif args.empty:
         labels, root = np.zeros(len(cloud), np.int32), None
         log.info("edit: starting with every Gaussian unassigned")
     else:
         log.info("edit: automatic segmentation (as convert does; --empty to skip, --labels to reuse one)")
-        labels, root, frame = automatic_labels(cloud, args.up, args.root, args.root_index)
+        labels, root, frame, conf = automatic_labels(cloud, args.up, args.root, args.root_index)
     edits = load_edits(args.edits, inp) if args.edits else None
     stem = inp.name.rsplit(".", 1)[0]
     edits_out = Path(args.edits_out) if args.edits_out else inp.with_name(stem + ".edits.json")
@@ -156,7 +217,7 @@ def run(args) -> int:
                             height=edits.height if edits else (frame.height if frame else None),
                             up=frame.up if frame else None,
                             n_samples=edits.n_samples if edits else args.samples,
-                            min_opacity=args.min_opacity)
+                            min_opacity=args.min_opacity, confidence=conf)
     if edits is not None:
         session.segmenter.replay(to_cloud_operations(edits.operations, cloud))
         session.saved_ops = list(session.segmenter.operations)
@@ -164,6 +225,8 @@ def run(args) -> int:
     server = ViewerServer(session, port=args.port)
     print(f"leaffit-usd edit: open {server.url}", flush=True)
     print("  (local only; the token in the URL is required; Ctrl-C to stop)", flush=True)
+    for line in doubtful_lines(session):
+        print(line, flush=True)
     if not args.no_browser:
         _open_browser(server.url)
     previous = None

@@ -5,6 +5,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+DOUBTFUL_CONFIDENCE = 0.5  # a leaf whose confidence is below this is worth a look ('edit' marks it)
+
 
 @dataclass
 class Segmentation:

@@ -18,12 +18,21 @@ API (all under ``/<token>/``; JSON unless said otherwise):
 * ``GET  api/meta``         counts, plant height, up axis, output file names, defaults
 * ``GET  api/points``       binary: float32 (N, 3) positions (display frame, see below) then
                             uint8 (N, 3) RGB colours
-* ``GET  api/state``        labels (base64 int32 LE), selection (base64 packbits), leaves, undo/redo
+* ``GET  api/state``        labels (base64 int32 LE), selection (base64 packbits), leaves (each with
+                            its ``confidence`` and ``doubtful`` flag), ``least_confident``, undo/redo
 * ``POST api/pick``         ``{origin: [3], direction: [3]}`` (display frame) -> ``{index, t}``
 * ``POST api/preview``      ``{op}`` -> selection the op would give (not recorded)
 * ``POST api/op``           ``{op}`` -> apply and record; returns the state
 * ``POST api/undo|redo``    -> state;  ``POST api/save`` -> written file names
 * ``POST api/stop``         stop the server (the page's Quit button)
+
+Confidence: the segmentation the session starts from may give a confidence per leaf (the
+automatic one does; a labels file may carry a ``confidence`` array). A leaf of the current labels
+keeps the confidence of the starting leaf with its number while more than half of its Gaussians
+still come from that leaf (edits may grow or trim it); leaves made by edits, and leaves mostly
+made of another leaf's Gaussians, have none (null). A leaf is ``doubtful`` below
+:data:`leaffit_usd.segment.result.DOUBTFUL_CONFIDENCE`; ``least_confident`` is the leaf with the
+lowest known confidence when that is below 1 (else null); the page opens on it.
 
 Display frame: ``(x_input - centre) / height`` — the input frame translated and scaled so the
 page works with numbers near 1 (float32-friendly); the server maps rays back exactly.
@@ -45,6 +54,7 @@ import numpy as np
 
 from leaffit_usd.errors import UserError
 from leaffit_usd.io_util import atomic_path
+from leaffit_usd.segment.result import DOUBTFUL_CONFIDENCE
 
 log = logging.getLogger("leaffit_usd")
 
@@ -79,6 +89,8 @@ class ViewerSession:
     edits_out, labels_out : where Save writes (fixed at start; never from a request)
     root_index : root Gaussian (cloud order) to carry into the labels file, or None
     up : (3,) unit up axis, input frame (for the camera)
+    confidence : (L0,) float64 in [0, 1] or None, confidence of each STARTING leaf (label l+1 of
+        the labels the session started from at index l); see :func:`carried_confidence`
     """
 
     cloud: object
@@ -91,6 +103,7 @@ class ViewerSession:
     up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
     input_name: str = ""
     saved_ops: list = field(default_factory=list)  # operations at the last save (for "dirty")
+    confidence: np.ndarray | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def __post_init__(self):
@@ -107,6 +120,7 @@ class ViewerSession:
             "up": [float(v) for v in self.up], "edits_out": self.edits_out.name,
             "labels_out": self.labels_out.name, "brush_radius": 0.05,
             "operations": list(OPERATIONS), "samples": int(len(self.segmenter.geodesics.samples)),
+            "doubtful_below": DOUBTFUL_CONFIDENCE,
         }
 
     def points_bytes(self) -> bytes:
@@ -114,15 +128,31 @@ class ViewerSession:
         rgb = np.round(self.cloud.colors * 255).astype(np.uint8)
         return pos.tobytes() + rgb.tobytes()
 
-    def state(self) -> dict:
+    def leaves(self) -> tuple[list[dict], int]:
+        """(rows, stem count) of the current labels: one row per leaf present, by label:
+        ``{label, count, confidence (float or None), doubtful (bool)}``."""
         seg = self.segmenter
         labels = seg.labels
         counts = np.bincount(labels, minlength=1)
-        leaves = [{"label": int(k), "count": int(c)} for k, c in enumerate(counts) if k > 0 and c > 0]
+        conf = carried_confidence(seg.initial.labels, labels, self.confidence)
+        rows = []
+        for k in np.flatnonzero(counts).tolist():
+            if k == 0:
+                continue
+            c = conf.get(k)
+            rows.append({"label": int(k), "count": int(counts[k]),
+                         "confidence": None if c is None else round(float(c), 4),
+                         "doubtful": c is not None and c < DOUBTFUL_CONFIDENCE})
+        return rows, int(counts[0])
+
+    def state(self) -> dict:
+        seg = self.segmenter
+        labels = seg.labels
+        leaves, stem = self.leaves()
         return {
             "labels": base64.b64encode(labels.astype("<i4").tobytes()).decode(),
             "selection": _pack(seg.selection), "selected": int(seg.selection.sum()),
-            "leaves": leaves, "stem": int(counts[0]),
+            "leaves": leaves, "stem": stem, "least_confident": least_confident(leaves),
             "can_undo": seg.can_undo, "can_redo": seg.can_redo, "n_ops": len(seg.operations),
             "dirty": seg.operations != self.saved_ops,
         }
@@ -156,6 +186,37 @@ class ViewerSession:
                  self.labels_out, int(labels.max(initial=0)))
         return {"edits": self.edits_out.name, "labels": self.labels_out.name,
                 "operations": len(edits.operations), "leaves": int(labels.max(initial=0))}
+
+
+def carried_confidence(initial: np.ndarray, current: np.ndarray, confidence) -> dict[int, float]:
+    """{current leaf label: confidence} for the leaves that are still, mostly, a starting leaf.
+
+    initial, current : (N,) int labels (session start, now; 0 = stem); confidence : (L0,) float
+    with starting leaf l+1 at index l, or None (then ``{}``). Leaf k keeps ``confidence[k-1]``
+    when more than half of its current Gaussians had label k at the start (edits keep a leaf's
+    number; new leaves take numbers past the largest present, which may be a deleted leaf's, so
+    the number alone does not say it is the same leaf). Other leaves are absent (unknown).
+    """
+    if confidence is None:
+        return {}
+    conf = np.asarray(confidence, np.float64)
+    initial = np.asarray(initial)
+    current = np.asarray(current)
+    counts = np.bincount(current, minlength=1)
+    same = current == initial
+    kept = np.bincount(current[same], minlength=len(counts))
+    return {k: float(conf[k - 1]) for k in range(1, min(len(counts), len(conf) + 1))
+            if counts[k] > 0 and 2 * kept[k] > counts[k]}
+
+
+def least_confident(leaves: list[dict]) -> int | None:
+    """Label of the row with the lowest known confidence (smallest label on ties), or None when
+    no leaf has one below 1 (nothing to point at)."""
+    known = [(r["confidence"], r["label"]) for r in leaves if r["confidence"] is not None]
+    if not known:
+        return None
+    c, label = min(known)
+    return label if c < 1.0 else None
 
 
 def _pack(mask: np.ndarray) -> str:
@@ -372,19 +433,30 @@ class ViewerServer:
 
 def build_session(cloud, labels, input_path, edits_out, labels_out, root_index=None,
                   height=None, n_samples=None, solver_factory=None, min_opacity: float = 0.0,
-                  normals: str | None = "smallest-axis", up=None):
+                  normals: str | None = "smallest-axis", up=None, confidence=None):
     """Make a :class:`ViewerSession` for ``cloud`` (input frame) starting from ``labels`` (cloud order).
 
     input_path : the input file (hashed into the edits); height : plant height in input units
     (default: :func:`leaffit_usd.segment.edits.plant_frame`); min_opacity : Gaussians below it
     are not pickable (floaters); normals : "smallest-axis" for orientation-aware geodesics, or None;
-    up : (3,) plant up axis, input frame (default: from :func:`plant_frame`, with the height).
+    up : (3,) plant up axis, input frame (default: from :func:`plant_frame`, with the height);
+    confidence : (L,) float in [0, 1] per starting leaf (label l+1 at index l), or None. An array
+    of another length, or with values outside [0, 1], is a ParameterError.
     """
+    from leaffit_usd.errors import ParameterError
     from leaffit_usd.io_util import file_sha256
     from leaffit_usd.segment.edits import Edits, flat_normals, labels_sha256, plant_frame
     from leaffit_usd.segment.manual import N_SAMPLES, ManualSegmenter
     from leaffit_usd.segment.picking import GaussianBVH
 
+    labels = np.asarray(labels, np.int32)
+    if confidence is not None:
+        confidence = np.asarray(confidence, np.float64)
+        n_leaves = int(labels.max(initial=0))
+        if confidence.shape != (n_leaves,):
+            raise ParameterError("confidence", f"({n_leaves},) values, one per leaf", confidence.shape)
+        if not np.all((confidence >= 0) & (confidence <= 1)):
+            raise ParameterError("confidence", "values in [0, 1]", confidence.tolist())
     t0 = time.perf_counter()
     if height is None or up is None:
         auto_height, auto_up = plant_frame(cloud)
@@ -392,7 +464,6 @@ def build_session(cloud, labels, input_path, edits_out, labels_out, root_index=N
         up = auto_up if up is None else up
     up = np.asarray(up, np.float64)
     n_samples = int(n_samples or N_SAMPLES)
-    labels = np.asarray(labels, np.int32)
     template = Edits(input_sha256=file_sha256(input_path), n_gaussians=int(cloud.file_count),
                      height=height, n_samples=n_samples,
                      base_labels_sha256=labels_sha256(cloud.to_file_order(labels)),
@@ -408,5 +479,6 @@ def build_session(cloud, labels, input_path, edits_out, labels_out, root_index=N
              len(seg.geodesics.samples), t1 - t0, bvh.n_pickable, t2 - t1)
     return ViewerSession(cloud=cloud, segmenter=seg, bvh=bvh, edits_template=template,
                          edits_out=Path(edits_out), labels_out=Path(labels_out),
-                         root_index=root_index, up=up, input_name=Path(input_path).name)
+                         root_index=root_index, up=up, input_name=Path(input_path).name,
+                         confidence=confidence)
 

@@ -114,3 +114,50 @@ def test_brush_assign_save_in_chromium(sample, heat, tmp_path):
     # and the brushed leaf is the one under the stroke
     new = saved[cloud.file_index] == 1
     assert new.sum() > 50 and (truth_c[new] == leaf).mean() > 0.9
+
+
+def test_opens_on_the_least_confident_leaf(plant, heat, tmp_path):
+    """The page checks the least confident leaf on open, points the camera at it, marks the
+    doubtful leaves with '?', and 'Next ?' goes through them (small synthetic plant: fast)."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    cloud, truth = plant[0], plant[1].copy()
+    truth[(truth == 1) & (cloud.means[:, 0] < -0.3)] = 3  # the outer half of leaf 1 as leaf 3
+    write_ply(cloud, tmp_path / "plant.ply")
+    cloud = load_cloud(tmp_path / "plant.ply")
+    labels = truth[cloud.file_index]
+    session = build_session(cloud, labels, tmp_path / "plant.ply", tmp_path / "e.json", tmp_path / "l.npz",
+                            n_samples=300, solver_factory=heat, height=0.8, up=(0.0, 0.0, 1.0),
+                            confidence=np.array([0.9, 0.2, 0.4]))
+    server = ViewerServer(session).start_background()
+    try:
+        with sync_api.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM if Path(CHROMIUM).exists() else shutil.which("chromium"),
+                                        args=["--no-sandbox", "--disable-gpu", "--headless=new"])
+            page = browser.new_page(viewport={"width": 1100, "height": 750})
+            errors = []
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(server.url)
+            page.wait_for_function("() => window.leaffit && window.leaffit.ready", timeout=30000)
+            assert page.evaluate("window.leaffit.checked()") == [2]
+            status = page.inner_text("[data-testid=status]")
+            assert "leaf 2 is the least confident (0.20)" in status and "2 doubtful leaves" in status
+            # the camera looks at leaf 2's box centre (display frame)
+            pos = (cloud.means[labels == 2] - session.centre) / session.height
+            centre = (pos.min(0) + pos.max(0)) / 2
+            assert np.allclose(page.evaluate("window.leaffit.target()"), centre, atol=1e-4)
+            # rows: least confident first; doubtful ones marked '?'
+            rows = page.eval_on_selector_all(
+                "#leaves .leaf", "rs => rs.map(r => [+r.dataset.label, r.className, r.innerText])")
+            assert [r[0] for r in rows] == [0, 2, 3, 1]
+            cls = {r[0]: r[1] for r in rows}
+            assert "doubtful" in cls[2] and "least" in cls[2] and "doubtful" in cls[3] and "doubtful" not in cls[1]
+            assert "?" in rows[1][2] and "0.20" in rows[1][2] and "?" not in rows[3][2]
+            page.click("[data-testid=next-doubtful]")
+            assert page.evaluate("window.leaffit.checked()") == [3]
+            page.keyboard.press("n")
+            assert page.evaluate("window.leaffit.checked()") == [2]
+            assert page.evaluate("window.leaffit.state().n_ops") == 0  # looking records nothing
+            assert not errors, errors
+            browser.close()
+    finally:
+        server.stop()

@@ -94,7 +94,8 @@ def test_api_pick_preview_op_undo_save(client, served, plant):
     st = client.post(f"/{TOKEN}/api/op", json={"op": {"op": "assign", "label": "new", "path": "/tmp/evil"},
                                                 "path": "/tmp/evil"}).get_json()
     labels = np.frombuffer(base64.b64decode(st["labels"]), "<i4")
-    assert np.array_equal(labels == 1, sel) and st["leaves"] == [{"label": 1, "count": int(sel.sum())}]
+    assert np.array_equal(labels == 1, sel) and st["leaves"] == [
+        {"label": 1, "count": int(sel.sum()), "confidence": None, "doubtful": False}]
     bad = client.post(f"/{TOKEN}/api/op", json={"op": {"op": "assign", "label": -3}})
     assert bad.status_code == 400 and "label" in bad.get_json()["error"]
     assert client.post(f"/{TOKEN}/api/op", json=[1, 2]).status_code == 400
@@ -213,18 +214,178 @@ def test_automatic_start_and_its_fallback(plant, monkeypatch, caplog):
     from leaffit_usd.errors import UserError
 
     cloud = plant[0]
-    labels, root, frame = automatic_labels(cloud, up="+z")
+    labels, root, frame, conf = automatic_labels(cloud, up="+z")
     assert labels.shape == (len(cloud),) and labels.dtype == np.int32 and 0 <= root < len(cloud)
     assert frame.height > 0
+    # the segmentation's confidence comes out with the labels: one value in [0, 1] per leaf
+    assert labels.max() >= 1 and conf.shape == (labels.max(),) and ((conf >= 0) & (conf <= 1)).all()
 
     def fail(*a, **k):
         raise UserError("no apex found")
 
     monkeypatch.setattr("leaffit_usd.pipeline.auto_segment", fail)
     with caplog.at_level(logging.WARNING, logger="leaffit_usd"):
-        labels, _, _ = automatic_labels(cloud, up="+z")
-    assert not labels.any() and "automatic segmentation failed" in caplog.text
+        labels, _, _, conf = automatic_labels(cloud, up="+z")
+    assert not labels.any() and conf is None and "automatic segmentation failed" in caplog.text
     from leaffit_usd.errors import ParameterError
 
     with pytest.raises(ParameterError):  # a bad --up is an error, not a fallback
         automatic_labels(cloud, up="sideways")
+
+
+# ---- per-leaf confidence ------------------------------------------------------------------
+
+def test_carried_confidence_follows_leaves_not_numbers():
+    from leaffit_usd.viewer.server import carried_confidence, least_confident
+
+    start = np.array([0, 1, 1, 1, 1, 1, 2, 2, 2, 3, 3], np.int32)
+    conf = np.array([0.9, 0.2, 0.7])
+    assert carried_confidence(start, start, conf) == {1: 0.9, 2: 0.2, 3: 0.7}
+    assert carried_confidence(start, start, None) == {}
+    now = start.copy()
+    now[6] = 1               # leaf 1 grows by one Gaussian of leaf 2: both keep theirs
+    now[[9, 10]] = 0         # leaf 3 deleted ...
+    now[[4, 5]] = 3          # ... and its number reused for a new leaf cut from leaf 1: unknown
+    assert carried_confidence(start, now, conf) == {1: 0.9, 2: 0.2}
+    now2 = start.copy()
+    now2[now2 == 1] = 2      # leaf 1 merged into leaf 2 (3 of its 8 Gaussians are its own): unknown
+    assert carried_confidence(start, now2, conf) == {3: 0.7}
+    rows = [{"label": 1, "confidence": 0.9}, {"label": 2, "confidence": None}, {"label": 3, "confidence": 0.4}]
+    assert least_confident(rows) == 3
+    assert least_confident([{"label": 1, "confidence": 1.0}, {"label": 2, "confidence": None}]) is None
+    assert least_confident([{"label": 4, "confidence": 0.3}, {"label": 2, "confidence": 0.3}]) == 2
+
+
+@pytest.fixture(scope="module")
+def confident(plant, served):
+    """A session on the two-leaf plant starting from the truth, with leaf 2 doubtful (it shares
+    the served session's geodesics and BVH: building them again would only cost time)."""
+    import dataclasses
+    import threading
+
+    from leaffit_usd.segment.manual import ManualSegmenter
+
+    s = served[0]
+    seg = ManualSegmenter(plant[0].means, plant[1], s.height, geodesics=s.segmenter.geodesics)
+    return dataclasses.replace(s, segmenter=seg, confidence=np.array([0.93, 0.31]), saved_ops=[],
+                               lock=threading.Lock())
+
+
+def test_state_gives_each_leaf_its_confidence_and_the_least_confident(confident, plant):
+    from leaffit_usd.segment.result import DOUBTFUL_CONFIDENCE
+
+    truth = plant[1]
+    app = create_app(confident, TOKEN)
+    client = app.test_client()
+    assert client.get(f"/{TOKEN}/api/meta").get_json()["doubtful_below"] == DOUBTFUL_CONFIDENCE == 0.5
+    st = client.get(f"/{TOKEN}/api/state").get_json()
+    assert st["leaves"] == [
+        {"label": 1, "count": int((truth == 1).sum()), "confidence": 0.93, "doubtful": False},
+        {"label": 2, "count": int((truth == 2).sum()), "confidence": 0.31, "doubtful": True}]
+    assert st["least_confident"] == 2
+    from leaffit_usd.commands.edit import doubtful_lines
+
+    assert doubtful_lines(confident) == [
+        "leaffit-usd edit: leaves to check (confidence < 0.5): 2 (0.31); the page opens on leaf 2"]
+    try:
+        # trim leaf 2 (a brush at its tip, to the stem): still leaf 2, still doubtful
+        tip2 = int(plant[2][1])
+        client.post(f"/{TOKEN}/api/op", json={"op": {"op": "brush", "centers": [tip2], "radius": 0.08}})
+        st = client.post(f"/{TOKEN}/api/op", json={"op": {"op": "assign", "label": 0}}).get_json()
+        two = [r for r in st["leaves"] if r["label"] == 2][0]
+        assert 0 < two["count"] < (truth == 2).sum() and two["confidence"] == 0.31 and two["doubtful"]
+        # delete leaf 2; a new leaf cut from leaf 1 takes the number 2 but not its confidence
+        client.post(f"/{TOKEN}/api/op", json={"op": {"op": "delete", "label": 2}})
+        tip1 = int(plant[2][0])
+        client.post(f"/{TOKEN}/api/op", json={"op": {"op": "brush", "centers": [tip1], "radius": 0.08,
+                                                         "mode": "replace"}})
+        st = client.post(f"/{TOKEN}/api/op", json={"op": {"op": "split", "label": 1}}).get_json()
+        rows = {r["label"]: r for r in st["leaves"]}
+        assert set(rows) == {1, 2} and rows[2]["confidence"] is None and not rows[2]["doubtful"]
+        assert rows[1]["confidence"] == 0.93 and st["least_confident"] == 1
+        # undo brings the doubtful leaf back
+        for _ in range(3):
+            st = client.post(f"/{TOKEN}/api/undo", json={}).get_json()
+        assert st["least_confident"] == 2
+    finally:
+        while confident.segmenter.undo():
+            pass
+
+
+def test_no_confidence_means_no_least_confident(client, served, confident):
+    from leaffit_usd.commands.edit import doubtful_lines
+
+    st = client.get(f"/{TOKEN}/api/state").get_json()
+    assert st["least_confident"] is None
+    assert all(r["confidence"] is None and r["doubtful"] is False for r in st["leaves"])
+    assert doubtful_lines(served[0]) == []
+    confident.confidence = np.array([1.0, 0.8])
+    try:
+        assert doubtful_lines(confident) == [
+            "leaffit-usd edit: no doubtful leaf (all 2 with confidence >= 0.5; lowest: leaf 2, 0.80)"]
+        assert confident.state()["least_confident"] == 2
+        confident.confidence = np.ones(2)  # a method that gives none: nothing to point at
+        assert confident.state()["least_confident"] is None
+    finally:
+        confident.confidence = np.array([0.93, 0.31])
+
+
+def test_build_session_refuses_a_confidence_that_does_not_fit(plant, heat, served):
+    from leaffit_usd.errors import ParameterError
+
+    d = served[1]
+    for bad in (np.array([0.5]), np.array([0.5, 1.5]), np.array([0.5, np.nan])):
+        with pytest.raises(ParameterError, match="confidence"):
+            build_session(plant[0], plant[1], d / "plant.ply", d / "x.json", d / "x.npz", n_samples=64,
+                          solver_factory=heat, confidence=bad)
+
+
+def test_labels_file_confidence_is_read_and_mapped(plant, tmp_path, caplog):
+    """A labels file's confidence follows its leaves through load_labels' renumbering."""
+    import logging
+
+    from leaffit_usd.commands.edit import read_labels_file
+
+    cloud, truth = plant[0], plant[1]
+    gappy = np.where(truth == 2, 5, truth).astype(np.int32)  # leaves 1 and 5 -> renumbered 1, 2
+    np.savez(tmp_path / "a.npz", labels=gappy, confidence=np.array([0.8, 0.1, 0.1, 0.1, 0.25]))
+    labels, _, conf = read_labels_file(tmp_path / "a.npz", cloud)
+    assert np.array_equal(labels, truth[cloud.file_index]) and conf.tolist() == [0.8, 0.25]
+    np.savez(tmp_path / "b.npz", labels=truth, root_index=np.int64(3))
+    assert read_labels_file(tmp_path / "b.npz", cloud)[1:] == (int(np.flatnonzero(cloud.file_index == 3)[0]), None)
+    with caplog.at_level(logging.WARNING, logger="leaffit_usd"):
+        np.savez(tmp_path / "c.npz", labels=truth, confidence=np.array([0.5, 0.5, 0.5]))
+        assert read_labels_file(tmp_path / "c.npz", cloud)[2] is None
+        np.savez(tmp_path / "d.npz", labels=truth, confidence=np.array([0.5, 7.0]))
+        assert read_labels_file(tmp_path / "d.npz", cloud)[2] is None
+    assert caplog.text.count("ignoring its 'confidence'") == 2
+
+
+def test_cli_prints_doubtful_leaves_and_serves_them(served, plant, tmp_path):
+    d = served[1]
+    np.savez(tmp_path / "seg.npz", labels=plant[1], confidence=np.array([0.45, 0.2]))
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    p = subprocess.Popen([sys.executable, "-m", "leaffit_usd", "edit", str(d / "plant.ply"), "--no-browser",
+                          "--labels", str(tmp_path / "seg.npz"), "--samples", "500",
+                          "--labels-out", str(tmp_path / "l.npz")],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        lines = []
+        deadline = time.time() + 60
+        while not any("leaves to check" in x for x in lines) and time.time() < deadline:
+            line = p.stdout.readline()
+            if not line and p.poll() is not None:
+                break
+            lines.append(line)
+        url = [x for x in lines if "http://" in x][0].split("open ", 1)[1].strip()
+        check = [x for x in lines if "leaves to check" in x]
+        assert check and "2 (0.20), 1 (0.45)" in check[0] and "opens on leaf 2" in check[0], lines
+        with urllib.request.urlopen(url + "api/state", timeout=10) as r:
+            st = json.loads(r.read())
+        assert st["least_confident"] == 2 and [r["doubtful"] for r in st["leaves"]] == [True, True]
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=20)
+        assert p.returncode == 0 and "Traceback" not in err, err
+    finally:
+        if p.poll() is None:
+            p.kill()

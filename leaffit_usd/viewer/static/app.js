@@ -121,23 +121,98 @@ function applyState(st) {
   S.previewBits = null;
   S.leaves = st.leaves;
   S.stemCount = st.stem;
+  S.state = st;
   $('sel-count').textContent = st.selected;
   $('undo').disabled = !st.can_undo;
   $('redo').disabled = !st.can_redo;
   $('save').textContent = st.dirty ? 'Save*' : 'Save';
+  $('next-doubtful').disabled = !doubtfulLeaves().length;
   renderLeafList();
   recolor();
-  S.state = st;
+}
+
+// ---- confidence ---------------------------------------------------------------------------
+// Each leaf row carries the confidence of the segmentation the session started from (null for
+// leaves made by edits) and a doubtful flag (confidence below meta.doubtful_below).
+const confKey = (r) => (r.confidence === null || r.confidence === undefined ? 2 : r.confidence);
+
+function doubtfulLeaves() {
+  // doubtful leaves, least confident first
+  return S.leaves.filter((r) => r.doubtful).sort((a, b) => confKey(a) - confKey(b) || a.label - b.label);
+}
+
+function leafRows() {
+  const rows = [...S.leaves];
+  if ($('sort-conf').checked) rows.sort((a, b) => confKey(a) - confKey(b) || a.label - b.label);
+  return rows;
+}
+
+function leafSphere(label) {
+  // centre and radius (display frame) of the bounding box of a leaf's Gaussians, or null
+  const lo = [Infinity, Infinity, Infinity], hi = [-Infinity, -Infinity, -Infinity];
+  let n = 0;
+  for (let i = 0; i < S.n; i++) {
+    if (S.labels[i] !== label) continue;
+    n++;
+    for (let k = 0; k < 3; k++) {
+      const v = S.positions[3 * i + k];
+      if (v < lo[k]) lo[k] = v;
+      if (v > hi[k]) hi[k] = v;
+    }
+  }
+  if (!n) return null;
+  const c = new THREE.Vector3((lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2);
+  return { center: c, radius: 0.5 * Math.hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]) };
+}
+
+function focusLeaf(label) {
+  // point the camera at a leaf, keeping the viewing direction; close enough to fill the view
+  const s = leafSphere(label);
+  if (!s) return;
+  const dir = camera.position.clone().sub(controls.target).normalize();
+  controls.target.copy(s.center);
+  camera.position.copy(s.center).addScaledVector(dir, Math.max(3.2 * s.radius, 0.12));
+  controls.update();
+  render();
+}
+
+function showLeaf(label) {
+  // check this leaf only (Merge/Split/Delete act on it), scroll its row into view, look at it
+  for (const cb of $('leaves').querySelectorAll('input')) cb.checked = +cb.dataset.label === label;
+  const row = $('leaves').querySelector(`.leaf[data-label="${label}"]`);
+  if (row && row.scrollIntoView) row.scrollIntoView({ block: 'nearest' });
+  focusLeaf(label);
+}
+
+function nextDoubtful() {
+  const list = doubtfulLeaves();
+  if (!list.length) return setStatus('no doubtful leaf');
+  const ch = checkedLeaves();
+  const at = ch.length === 1 ? list.findIndex((r) => r.label === ch[0]) : -1;
+  const r = list[(at + 1) % list.length];
+  showLeaf(r.label);
+  status(`leaf ${r.label}: confidence ${r.confidence.toFixed(2)} (doubtful ${list.indexOf(r) + 1} of ${list.length})`);
+}
+
+function homeView() {
+  if (!S.home) return;
+  controls.target.copy(S.home.target);
+  camera.position.copy(S.home.position);
+  controls.update();
+  render();
 }
 
 function renderLeafList() {
   const box = $('leaves');
   const checked = new Set([...box.querySelectorAll('input:checked')].map((e) => +e.dataset.label));
   box.textContent = '';
-  const rows = [{ label: 0, count: S.stemCount }, ...S.leaves];
-  for (const { label, count } of rows) {
+  const least = S.state ? S.state.least_confident : null;
+  const rows = [{ label: 0, count: S.stemCount, confidence: null, doubtful: false }, ...leafRows()];
+  for (const { label, count, confidence, doubtful } of rows) {
     const row = document.createElement('div');
     row.className = 'leaf';
+    row.classList.toggle('doubtful', !!doubtful);
+    row.classList.toggle('least', label !== 0 && label === least);
     row.dataset.label = label;
     const cb = document.createElement('input');
     cb.type = 'checkbox';
@@ -153,13 +228,31 @@ function renderLeafList() {
     name.addEventListener('click', (e) =>
       runOp({ op: 'select_leaf', label, mode: e.shiftKey ? 'add' : 'replace' }));
     row.append(cb, sw, name);
+    if (label !== 0) {
+      const known = confidence !== null && confidence !== undefined;
+      const conf = document.createElement('span');
+      conf.className = 'conf';
+      conf.textContent = known ? confidence.toFixed(2) : '–';
+      row.title = known
+        ? `confidence ${confidence.toFixed(2)}` + (doubtful ? ' — doubtful: check this leaf' : '') +
+          (label === least ? ' (the least confident)' : '')
+        : 'confidence unknown (a leaf made or reshaped by edits, or none given)';
+      row.append(conf);
+      if (doubtful) {
+        const badge = document.createElement('span');
+        badge.className = 'badge';
+        badge.textContent = '?';
+        row.append(badge);
+      }
+    }
     box.append(row);
   }
   $('leaf-count').textContent = `(${S.leaves.length})`;
   const target = $('target');
   const keep = target.value;
   target.textContent = '';
-  const opts = [['new', 'new leaf'], ['0', 'stem'], ...S.leaves.map((l) => [String(l.label), `leaf ${l.label}`])];
+  const opts = [['new', 'new leaf'], ['0', 'stem'],
+    ...S.leaves.map((l) => [String(l.label), `leaf ${l.label}` + (l.doubtful ? ' ?' : '')])];
   for (const [v, t] of opts) {
     const o = document.createElement('option');
     o.value = v; o.textContent = t;
@@ -181,9 +274,19 @@ async function runOp(op) {
   } catch (e) { setStatus(String(e.message || e), true); }
 }
 
+function confidenceLine() {
+  const least = S.state ? S.state.least_confident : null;
+  const row = S.leaves.find((r) => r.label === least);
+  if (!row) return '';
+  const k = doubtfulLeaves().length;
+  return `\nleaf ${least} is the least confident (${row.confidence.toFixed(2)})` +
+    (k ? ` · ${k} doubtful ${k > 1 ? 'leaves' : 'leaf'} marked ?` : '');
+}
+
 function status(extra = '') {
   setStatus(`${S.n} Gaussians · ${S.leaves.length} leaves · ${S.state ? S.state.n_ops : 0} edits\n` +
-    `pick ${S.lastPickMs.toFixed(1)} ms · update ${S.lastUpdateMs.toFixed(1)} ms` + (extra ? `\n${extra}` : ''));
+    `pick ${S.lastPickMs.toFixed(1)} ms · update ${S.lastUpdateMs.toFixed(1)} ms` + confidenceLine() +
+    (extra ? `\n${extra}` : ''));
 }
 
 // ---- picking and tools ------------------------------------------------------------------
@@ -324,6 +427,9 @@ $('quit').addEventListener('click', async () => {
   setStatus('The server has stopped; you can close this tab.');
 });
 $('rgb').addEventListener('change', recolor);
+$('sort-conf').addEventListener('change', renderLeafList);
+$('next-doubtful').addEventListener('click', nextDoubtful);
+$('home').addEventListener('click', homeView);
 for (const r of document.querySelectorAll('input[name=tool]')) r.addEventListener('change', () => setTool(r.value));
 $('radius').addEventListener('input', () => { $('radius-value').textContent = (+$('radius').value).toFixed(3); });
 window.addEventListener('keydown', (e) => {
@@ -337,6 +443,8 @@ window.addEventListener('keydown', (e) => {
   else if (k === 'b') { document.querySelector('input[value=brush]').click(); }
   else if (k === 'd') { document.querySelector('input[value=drag]').click(); }
   else if (k === 'v') { document.querySelector('input[value=orbit]').click(); }
+  else if (k === 'n') nextDoubtful();
+  else if (k === 'h') homeView();
 });
 window.addEventListener('beforeunload', (e) => { if (S.state && S.state.dirty) e.preventDefault(); });
 
@@ -382,8 +490,12 @@ async function main() {
   camera.position.copy(sphere.center).addScaledVector(dir, sphere.radius * 2.2).addScaledVector(up, sphere.radius * 1.0);
   camera.lookAt(sphere.center);
   controls.update();
+  S.home = { target: controls.target.clone(), position: camera.position.clone() };
   setTool(document.querySelector('input[name=tool]:checked').value);
-  applyState(await api('state'));
+  const st = await api('state');
+  applyState(st);
+  // open on the least confident leaf: checked, in view
+  if (st.least_confident !== null && st.least_confident !== undefined) showLeaf(st.least_confident);
   resize();
   S.ready = true;
   status();
@@ -400,6 +512,8 @@ window.leaffit = {
   },
   pick(x, y) { return pickAt(x, y); },  // Gaussian index under client point (x, y), or -1
   labels() { return Array.from(S.labels); },
+  checked() { return checkedLeaves(); },  // labels of the checked leaves
+  target() { return controls.target.toArray(); },  // what the camera looks at (display frame)
   state() { return S.state; },
 };
 
