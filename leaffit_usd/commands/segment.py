@@ -70,6 +70,7 @@ def params_from_args(args):
 def run(args) -> int:
     from leaffit_usd.io_util import atomic_path
     from leaffit_usd.segment.auto import segment_plant, working_normals
+    from leaffit_usd.segment.result import DOUBTFUL_CONFIDENCE
     from leaffit_usd.splats import load_cloud
     from leaffit_usd.splats.frame import make_frame
 
@@ -111,14 +112,15 @@ def run(args) -> int:
         "dist_root": dist,
         "input_to_working": frame.input_to_working,
         "params": np.array(json.dumps(seg.params)),
-        "confidence": np.asarray(seg.confidence, np.float64),
     }
+    if not getattr(args, "edits", None):  # after edits the automatic leaves' confidence is stale
+        out["confidence"] = np.asarray(seg.confidence, np.float64)
     with atomic_path(args.output) as tmp:
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, **out)
     log.info("%d leaves, %d apexes, %d of %d Gaussians on leaves -> %s", seg.n_leaves,
              len(seg.apex_indices), int((seg.labels > 0).sum()), len(seg.labels), args.output)
-    doubtful = [i + 1 for i, c in enumerate(np.asarray(seg.confidence)) if c < 0.5]
+    doubtful = [i + 1 for i, c in enumerate(np.asarray(seg.confidence)) if c < DOUBTFUL_CONFIDENCE]
     if doubtful:
         log.info("leaves to check (confidence < 0.5): %s; 'leaffit-usd edit' opens on the least "
                  "confident", ", ".join(map(str, doubtful)))

@@ -72,6 +72,7 @@ SPLIT_CONFIDENCE = 0.6   # confidence factor of a leaf cut from a larger blade
 # wider tube tests (radius factor, ratio): a thick stem turns its normals through >= ~120 degrees
 # within twice, and >= ~150 degrees within four times the radius; a leaf blade does not
 TUBE_WIDE = ((2, 0.5), (4, 0.7))
+HEAT_SUBSAMPLE = 3       # the root distance's heat operator runs on every 3rd graph point (voxel)
 
 
 @dataclass
@@ -243,6 +244,10 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
     * exactly one of them is a tube (normal tensor ratio above ``params.tube_ratio``): a leaf
       meeting a stem too thick to pass the local tube test; the tube branch goes on.
 
+    After a cut at the bases the merged set goes on as a *junction* (the few points where the
+    leaflets meet); what it gathers is not a leaf of its own unless a larger, unflagged branch
+    absorbs it.
+
     Returns (list of (k_i,) node arrays, one per leaf; (r,) leftover nodes: junctions and branches
     below ``min_size``, assigned to the nearest leaf later).
     """
@@ -255,6 +260,7 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
     parent = np.arange(k)
     free: dict = {}
     tensor: dict = {}
+    junction: dict = {}
     seen = np.zeros(k, bool)
     leaves = []
 
@@ -275,7 +281,7 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
     indptr, indices = graph.indptr, graph.indices
     for v in order.tolist():
         seen[v] = True
-        free[v], tensor[v] = [v], nn[v].copy()
+        free[v], tensor[v], junction[v] = [v], nn[v].copy(), False
         nb = local[indices[indptr[nodes[v]]:indptr[nodes[v] + 1]]]
         nb = nb[nb >= 0]
         for r in sorted({find(u) for u in nb[seen[nb]].tolist()} - {v}):
@@ -289,15 +295,16 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
                 elif int(np.searchsorted(below_sorted, dist[v])) < params.palm_fraction * (
                         len(free[a]) + len(free[r])):  # met at their bases: two leaves
                     freeze(a), freeze(r)
-            if len(free[a]) < len(free[r]):
+                    junction[a] = junction[r] = True
+            if len(free[a]) < len(free[r]) or (len(free[a]) == len(free[r]) and junction[a]):
                 a, r = r, a
             parent[r] = a
             free[a].extend(free[r])
             tensor[a] = tensor[a] + tensor[r]
-            del free[r], tensor[r]
+            del free[r], tensor[r], junction[r]
     rest = []
-    for f in free.values():
-        (leaves.append(np.asarray(f)) if len(f) >= min_size else rest.extend(f))
+    for x, f in free.items():
+        (leaves.append(np.asarray(f)) if len(f) >= min_size and not junction[x] else rest.extend(f))
     return [nodes[x] for x in leaves], nodes[np.asarray(rest, np.int64)]
 
 
@@ -400,19 +407,33 @@ class BladeResult:
     d_root: np.ndarray         # (N,) float64, heat-method distance from the root (inf: unreached)
 
 
+def plant_reach(pts: np.ndarray, root: int, inlier: np.ndarray) -> float:
+    """The plant's reach from its root: the 99th percentile of the Gaussians' distances from it
+    (working units; the plant height for an upright plant, whatever up axis the frame chose)."""
+    d = np.linalg.norm(pts[inlier] - pts[root], axis=1)
+    return float(np.percentile(d, 99)) if len(d) else 1.0
+
+
 def segment_blades(pts: np.ndarray, root: int, inlier: np.ndarray, normals, params,
                    timings: dict) -> BladeResult:
-    """Steps 1-6. pts : (N, 3) working frame; inlier : (N,) bool (floaters False)."""
+    """Steps 1-6. pts : (N, 3) working frame; inlier : (N,) bool (floaters False).
+
+    The radii (``stalk_radius``, ``bridge_gap``) are in units of :func:`plant_reach`, which is
+    the working unit (plant height) when the up axis is right and does not change when the
+    estimated up axis is wrong (the height along a wrong axis can be a fraction of the plant).
+    """
+    reach = plant_reach(pts, root, inlier)
+    pts = np.asarray(pts, np.float64) / max(reach, 1e-12)
     t = time.perf_counter()
-    include = inlier.copy()
-    include[root] = True
-    g = build_surface_graph(pts, normals, include, params)
+    g = build_surface_graph(pts, normals, inlier, params)
+    source = _source_node(g, pts[root])
     timings["graph"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    solver = GeodesicSolver(pts, None, domain=np.union1d(g.domain, [root]),
+    heat_domain = g.domain[voxel_subsample(g.points, max(64, g.size // HEAT_SUBSAMPLE))]
+    solver = GeodesicSolver(pts, None, domain=np.union1d(heat_domain, [g.domain[source]]),
                             bridge_gap=params.bridge_gap if params.bridge_gap > 0 else None)
-    d_all = solver.distance(root)
+    d_all = solver.distance(int(g.domain[source]))
     d_all[~inlier] = np.inf
     d_root = d_all[g.domain]
     timings["distance_root"] = time.perf_counter() - t
@@ -428,12 +449,20 @@ def segment_blades(pts: np.ndarray, root: int, inlier: np.ndarray, normals, para
     timings["leaves"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    out = _to_gaussians(pts, g, found, conf, d_all, d_root, root, inlier)
+    out = _to_gaussians(pts, g, found, conf, d_all * reach, d_root, source, inlier)
     timings["labels"] = time.perf_counter() - t
     return out
 
 
-def _to_gaussians(pts, g: SurfaceGraph, found: BladeLeaves, conf, d_all, d_root, root, inlier):
+def _source_node(g: SurfaceGraph, root_point: np.ndarray) -> int:
+    """The graph point the root distances start from: the nearest to the root Gaussian within the
+    graph's largest connected piece (a root click can land on a stray Gaussian or in a hole)."""
+    _, comp = connected_components(g.graph, directed=False)
+    main = np.flatnonzero(comp == np.argmax(np.bincount(comp)))
+    return int(main[np.argmin(np.linalg.norm(g.points[main] - root_point, axis=1))])
+
+
+def _to_gaussians(pts, g: SurfaceGraph, found: BladeLeaves, conf, d_all, d_root, root_d, inlier):
     """Step 6: order leaves by base D_r, labels for every Gaussian (nearest domain point), tips,
     bases and the shortest-path tree from the root to every tip."""
     n_leaves = len(found.was_split)
@@ -453,7 +482,6 @@ def _to_gaussians(pts, g: SurfaceGraph, found: BladeLeaves, conf, d_all, d_root,
     _, near = cKDTree(g.points).query(pts, k=1, workers=-1)
     labels = lab_sorted[near].astype(np.int32)
     labels[~inlier | ~np.isfinite(d_all)] = 0
-    root_d = int(np.searchsorted(g.domain, root)) if root in set(g.domain.tolist()) else int(near[root])
     _, pred = dijkstra(g.graph, indices=root_d, return_predecessors=True)
     nodes, parent = _shortest_path_tree(pred, root_d, tips_d[order])
     return BladeResult(labels=labels, leaf_tip=g.domain[tips_d[order]], leaf_base=g.domain[bases_d[order]],

@@ -32,7 +32,7 @@ def test_finds_every_leaf_accurately(plant, seg):
 
 
 def test_orientation_aware_too(plant):
-    seg = segment_plant(plant.points, plant.root_index, SegmentParams(orientation_aware=True),
+    seg = segment_plant(plant.points, plant.root_index, SegmentParams(method="apex", orientation_aware=True),
                         normals=plant.normals)
     assert segmentation_scores(seg.labels, plant.labels).miou >= MIN_MIOU
 
@@ -155,11 +155,13 @@ def test_lobes_of_one_blade_are_grouped_by_the_relative_margin():
     leaves; the relative margin (direct < 0.9 x via the LCA, paths on the blade to the LCA) joins
     them, while different leaves (their paths meet on the stem, after petioles) stay apart."""
     pl = make_plant(n_leaves=6, seed=1, lobed=True)
-    seg = segment_plant(pl.points, pl.root_index)
+    seg = segment_plant(pl.points, pl.root_index, SegmentParams(method="apex"))
     s = segmentation_scores(seg.labels, pl.labels)
     assert len(seg.apex_indices) > 6  # some blade has two apexes (its lobe tips)
     assert seg.n_leaves == 6 and s.miou >= MIN_MIOU and s.pq >= MIN_MIOU
-    old = segment_plant(pl.points, pl.root_index, SegmentParams(tau_relative=0.0))
+    blades = segment_plant(pl.points, pl.root_index)  # the default keeps lobes together too
+    assert blades.n_leaves == 6 and segmentation_scores(blades.labels, pl.labels).miou >= MIN_MIOU
+    old = segment_plant(pl.points, pl.root_index, SegmentParams(method="apex", tau_relative=0.0))
     assert old.n_leaves > 6  # the absolute margin alone splits a lobed blade
 
 
@@ -171,7 +173,9 @@ def test_blade_about_epsilon_wide_is_not_cut_on_itself():
     seg = segment_plant(pl.points, pl.root_index)
     s = segmentation_scores(seg.labels, pl.labels)
     assert seg.n_leaves == 6 and s.miou >= MIN_MIOU and s.pq >= MIN_MIOU
-    old = segment_plant(pl.points, pl.root_index, SegmentParams(petiole_relative=0.0))
+    apex = segment_plant(pl.points, pl.root_index, SegmentParams(method="apex"))
+    assert segmentation_scores(apex.labels, pl.labels).miou >= MIN_MIOU
+    old = segment_plant(pl.points, pl.root_index, SegmentParams(method="apex", petiole_relative=0.0))
     assert segmentation_scores(old.labels, pl.labels).miou < 60  # cut on the blade
 
 

@@ -1,0 +1,112 @@
+"""The blades method (leaffit_usd.segment.blades): sheets vs tubes from normals, leaves that
+touch or share one attachment, thick stems, the per-leaf confidence."""
+import numpy as np
+import pytest
+
+from leaffit_usd.metrics import segmentation_scores
+from leaffit_usd.segment.auto import SegmentParams, segment_plant
+from leaffit_usd.segment.blades import build_surface_graph, normal_tensor_ratio, tube_mask
+
+from .synth import _blade, _cylinder, make_plant
+
+MIN_MIOU = 95.0
+
+
+def _disc(centre, normal, radius, n, rng):
+    normal = np.asarray(normal, float) / np.linalg.norm(normal)
+    u = np.cross(normal, [1.0, 0, 0]) if abs(normal[0]) < 0.9 else np.cross(normal, [0, 1.0, 0])
+    u /= np.linalg.norm(u)
+    v = np.cross(normal, u)
+    r = radius * np.sqrt(rng.random(n))
+    a = rng.random(n) * 2 * np.pi
+    p = centre + (r * np.cos(a))[:, None] * u + (r * np.sin(a))[:, None] * v
+    return p, np.tile(normal, (n, 1))
+
+
+def _assemble(parts, rng, noise=0.0005):
+    pts = np.concatenate([p for p, _, _ in parts])
+    nrm = np.concatenate([n for _, n, _ in parts])
+    lab = np.concatenate([np.full(len(p), lb, np.int32) for p, _, lb in parts])
+    pts = pts + rng.normal(0, noise, pts.shape)
+    root = int(np.argmin(np.linalg.norm(pts, axis=1)))
+    return pts, nrm, lab, root
+
+
+def test_tube_test_tells_a_stem_from_a_blade():
+    rng = np.random.default_rng(0)
+    stem, sn = _cylinder([0, 0, 0], [0, 0, 1.0], 0.006, 6000, rng)
+    blade, bn = _blade(np.array([0.3, 0, 0.5]), [1.0, 0, 0], 0.3, 0.15, 12000, rng)
+    pts = np.concatenate([stem, blade])
+    nrm = np.concatenate([sn, bn])
+    g = build_surface_graph(pts, nrm, np.ones(len(pts), bool), SegmentParams())
+    tube = tube_mask(g, SegmentParams())
+    is_stem = g.domain < len(stem)
+    assert tube[is_stem].mean() > 0.9 and tube[~is_stem].mean() < 0.02
+    assert normal_tensor_ratio(sn) > 0.9 and normal_tensor_ratio(bn) < 0.05
+
+
+def test_trifoliate_leaflets_on_one_attachment_are_three_leaves():
+    """Three leaflets meeting at the end of one petiole (a trifoliate leaf): one blade component
+    with one attachment; the merge tree cuts them apart at their bases. Without the palm rule
+    (palm_fraction = 0) they stay one leaf."""
+    rng = np.random.default_rng(3)
+    parts = []
+    s, n = _cylinder([0, 0, 0], [0, 0, 0.8], 0.006, 3000, rng)
+    parts.append((s, n, 0))
+    top = np.array([0.0, 0, 0.8])
+    for j, ang in enumerate((0.0, 2.1, 4.2)):
+        d = np.array([np.cos(ang), np.sin(ang), 0.0])
+        p, nr = _blade(top + 0.004 * d, d, 0.25, 0.12, 5000, rng, droop=0.05)
+        parts.append((p, nr, j + 1))
+    pts, nrm, lab, root = _assemble(parts, rng)
+    seg = segment_plant(pts, root, normals=nrm)
+    sc = segmentation_scores(seg.labels, lab)
+    assert seg.n_leaves == 3 and sc.miou >= 90
+    merged = segment_plant(pts, root, SegmentParams(palm_fraction=0.0), normals=nrm)
+    assert merged.n_leaves < 3
+
+
+def test_a_tip_hanging_just_above_a_lower_leaf_is_not_joined_to_it():
+    """Two parallel blades 6 mm apart (about one sample spacing), each on its own petiole: the
+    sheet test (tangent plane, normals) keeps them apart; with the test off (tangent_sin = 1,
+    normal_cos = 0) the graph joins them."""
+    rng = np.random.default_rng(4)
+    parts = [(*_cylinder([0, 0, 0], [0, 0, 0.9], 0.006, 3000, rng), 0)]
+    for j, h in enumerate((0.45, 0.456)):
+        pet, pn = _cylinder([0, 0, h], [0.05, 0, h], 0.003, 300, rng)
+        parts.append((pet, pn, 0))
+        disc, dn = _disc(np.array([0.05 + 0.15 + 0.1 * j, 0.0, h]), [0, 0, 1.0], 0.15, 9000, rng)
+        parts.append((disc, dn, j + 1))
+    pts, nrm, lab, root = _assemble(parts, rng, noise=0.0003)
+    seg = segment_plant(pts, root, normals=nrm)
+    assert seg.n_leaves == 2 and segmentation_scores(seg.labels, lab).miou >= 85
+    blind = segment_plant(pts, root, SegmentParams(tangent_sin=1.0, normal_cos=0.0), normals=nrm)
+    assert segmentation_scores(blind.labels, lab).miou < segmentation_scores(seg.labels, lab).miou
+
+
+def test_a_thick_stem_is_stem():
+    """A stem 5x thicker than stalk_radius is flat at that radius; the wide tube tests find it."""
+    pl = make_plant(n_leaves=5, n_points=30000, seed=2, stem_radius=0.04)
+    seg = segment_plant(pl.points, pl.root_index, normals=pl.normals)
+    sc = segmentation_scores(seg.labels, pl.labels)
+    assert seg.n_leaves == 5 and sc.miou >= 90
+    stem = pl.labels == 0
+    assert (seg.labels[stem] == 0).mean() > 0.9
+
+
+def test_confidence_marks_the_leaf_cut_from_a_blade():
+    """The trifoliate's leaflets are cut from one blade: lower confidence than a clean leaf."""
+    pl = make_plant(n_leaves=4, n_points=20000, seed=1, leaf_length=0.3, leaf_width=0.2)
+    seg = segment_plant(pl.points, pl.root_index, normals=pl.normals)
+    assert seg.confidence.shape == (seg.n_leaves,)
+    assert np.all((seg.confidence >= 0) & (seg.confidence <= 1))
+    assert seg.confidence.min() > 0.8  # clean, separate, similar leaves
+
+
+def test_blade_parameters_validated():
+    from leaffit_usd.errors import ParameterError
+
+    for kw in (dict(method="nope"), dict(stalk_radius=0.0), dict(normal_cos=1.5),
+               dict(domain_points=10), dict(palm_fraction=-0.1)):
+        with pytest.raises(ParameterError):
+            SegmentParams(**kw).validate()
