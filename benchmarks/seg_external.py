@@ -51,7 +51,7 @@ def leaf_ious(pred: np.ndarray, gt: np.ndarray) -> dict:
     return out
 
 
-def run_plant(folder: Path, paper_rules: bool = False) -> dict:
+def run_plant(folder: Path, paper_rules: bool = False, given_up: bool = False) -> dict:
     from leaffit_usd.segment.auto import SegmentParams, segment_plant, working_normals
     from leaffit_usd.splats import load_cloud
     from leaffit_usd.splats.frame import make_frame
@@ -61,7 +61,7 @@ def run_plant(folder: Path, paper_rules: bool = False) -> dict:
     t0 = time.perf_counter()
     cloud = load_cloud(str(folder / "point_cloud.ply"))
     root = ",".join(f"{v:.6g}" for v in gt["root"])
-    fc = make_frame(cloud, up=None, root=root)
+    fc = make_frame(cloud, up=gt["up"] if given_up else None, root=root)
     pts = fc.frame.to_working(cloud.means)
     prm = SegmentParams.paper() if paper_rules else SegmentParams()
     seg = segment_plant(pts, fc.root_index, prm, normals=working_normals(cloud, fc.frame.rotation))
@@ -97,6 +97,8 @@ def main(argv=None):
     ap.add_argument("--seeds", nargs="*", type=int, default=[1, 2, 3])
     ap.add_argument("--only", nargs="*")
     ap.add_argument("--paper-rules", action="store_true")
+    ap.add_argument("--given-up", action="store_true",
+                    help="use the ground-truth up axis (a quicker check; the issue's protocol estimates it)")
     ap.add_argument("--out")
     args = ap.parse_args(argv)
     if ext.shared_plants_dir() is None:
@@ -109,7 +111,7 @@ def main(argv=None):
             for f in ext.plants(ext.ensure_set(s, seed)):
                 if args.only and not any(o in f.name for o in args.only):
                     continue
-                r = run_plant(f, args.paper_rules)
+                r = run_plant(f, args.paper_rules, args.given_up)
                 r["seed"] = seed
                 rows.append(r)
                 print(f"{s}-{seed} {r['name']:<24} L={r['gt_leaves']:<3} pred={r['pred_leaves']:<3} "

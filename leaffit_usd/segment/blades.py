@@ -72,6 +72,7 @@ SPLIT_CONFIDENCE = 0.6   # confidence factor of a leaf cut from a larger blade
 # wider tube tests (radius factor, ratio): a thick stem turns its normals through >= ~120 degrees
 # within twice, and >= ~150 degrees within four times the radius; a leaf blade does not
 TUBE_WIDE = ((2, 0.5), (4, 0.7))
+PALM_BALANCE = 0.2       # leaflets cut apart at their bases are of comparable size (>= 1/5)
 HEAT_SUBSAMPLE = 3       # the root distance's heat operator runs on every 3rd graph point (voxel)
 
 
@@ -240,7 +241,8 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
     ``min_size`` points that merge are cut apart (each frozen as a leaf) when
 
     * less than ``params.palm_fraction`` of their size lies below the saddle (they meet at their
-      bases: leaflets at the end of a rachis), or
+      bases: leaflets at the end of a rachis) and the smaller is at least ``PALM_BALANCE`` of
+      the larger (a sliver of overlap is no leaflet), or
     * exactly one of them is a tube (normal tensor ratio above ``params.tube_ratio``): a leaf
       meeting a stem too thick to pass the local tube test; the tube branch goes on.
 
@@ -262,7 +264,7 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
     tensor: dict = {}
     junction: dict = {}
     seen = np.zeros(k, bool)
-    leaves = []
+    leaves, rest = [], []
 
     def find(x):
         while parent[x] != x:
@@ -292,17 +294,25 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
                 ta, tr = is_tube(a), is_tube(r)
                 if ta != tr:  # a sheet meets a tube: the sheet is a leaf
                     freeze(r if ta else a)
-                elif int(np.searchsorted(below_sorted, dist[v])) < params.palm_fraction * (
-                        len(free[a]) + len(free[r])):  # met at their bases: two leaves
-                    freeze(a), freeze(r)
+                elif (min(len(free[a]), len(free[r])) >= PALM_BALANCE * max(len(free[a]), len(free[r]))
+                      and int(np.searchsorted(below_sorted, dist[v])) < params.palm_fraction * (
+                          len(free[a]) + len(free[r]))):  # met at their bases: two leaves
+                    for x in (a, r):  # a junction met again is leftover, not a leaf
+                        if junction[x]:
+                            rest.extend(free[x])
+                            free[x], tensor[x] = [], np.zeros((3, 3))
+                        else:
+                            freeze(x)
                     junction[a] = junction[r] = True
             if len(free[a]) < len(free[r]) or (len(free[a]) == len(free[r]) and junction[a]):
                 a, r = r, a
+            # a junction stays one unless a branch of leaf size absorbs it
+            junction[a] = (junction[a] or junction[r]) and not (
+                len(free[a]) >= min_size and not junction[a])
             parent[r] = a
             free[a].extend(free[r])
             tensor[a] = tensor[a] + tensor[r]
             del free[r], tensor[r], junction[r]
-    rest = []
     for x, f in free.items():
         (leaves.append(np.asarray(f)) if len(f) >= min_size and not junction[x] else rest.extend(f))
     return [nodes[x] for x in leaves], nodes[np.asarray(rest, np.int64)]
