@@ -60,14 +60,11 @@ def run_one(name, spec, seed, methods):
             nrm = working_normals(cloud, fc.frame.rotation)
             seg = segment_plant(pts, fc.root_index, SegmentParams(), normals=nrm)
             labels = seg.labels
-        elif meth == "ours_orientation":
-            labels = segment_plant(pts, fc.root_index, SegmentParams(orientation_aware=True),
+        elif meth == "ours_apex":  # the previous default: the paper's march with our fixes
+            labels = segment_plant(pts, fc.root_index, SegmentParams(method="apex"),
                                    normals=working_normals(cloud, fc.frame.rotation)).labels
-        elif meth == "ours_paper_rules":  # every switchable deviation from the paper off
-            prm = SegmentParams(apex_surface_neighbors=False, blade_first=False, base_refine=False,
-                                lca_on_blade=False, require_blade=False, orientation_aware=False,
-                                tau_relative=0.0, petiole_relative=0.0)
-            labels = segment_plant(pts, fc.root_index, prm).labels
+        elif meth == "ours_paper_rules":  # the paper's algorithm exactly
+            labels = segment_plant(pts, fc.root_index, SegmentParams.paper()).labels
         else:
             labels = segment_density(pts, fc.root_index).labels
         el, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -88,9 +85,9 @@ def table(rows, methods, title):
         for m in METRICS:
             f = "{:9.3f}{:7.3f}" if m == "time" else "{:9.2f}{:7.2f}"
             cells.append(f.format(vals[m].mean(), vals[m].std()))
-        label = {"ours": "Ours (heat geodesics)", "baseline": "Euclidean Density",
-                 "ours_paper_rules": "Ours, paper rules",
-                 "ours_orientation": "Ours + orientation"}[meth]
+        label = {"ours": "Ours (blades)", "baseline": "Euclidean Density",
+                 "ours_paper_rules": "Paper rules (apex)",
+                 "ours_apex": "Ours, apex method"}[meth]
         lines.append(f"{label:<22}" + "".join(cells))
     return "\n".join(lines), summary
 
@@ -100,10 +97,16 @@ def main(argv=None):
     ap.add_argument("--gaussians", type=int, default=100_000)
     ap.add_argument("--only", nargs="*", help="plant names from samples.benchmark_suite()")
     ap.add_argument("--methods", nargs="*",
-                    default=["ours", "ours_orientation", "ours_paper_rules", "baseline"],
-                    help="ours, ours_orientation (+ orientation-aware geodesics), ours_paper_rules "
-                         "(the switchable deviations off: the paper's apex test, petiole and "
-                         "grouping rules), baseline")
+                    default=["ours", "ours_apex", "ours_paper_rules", "baseline"],
+                    help="ours (the blades method, the default), ours_apex (the paper's apex -> "
+                         "tree -> petiole march with our fixes, the previous default), "
+                         "ours_paper_rules (the paper's algorithm exactly), baseline")
+    ap.add_argument("--external", nargs="*", metavar="SET",
+                    help="also run the external sets of ../shared/plants (paper8 hard4 heliosdev8 "
+                         "when given without names; skipped with a message when absent), with "
+                         "the root given and the up axis estimated, as a new user would")
+    ap.add_argument("--seeds", nargs="*", type=int, default=[1, 2, 3],
+                    help="seeds of the external sets (1 2 3)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/segmentation.json"))
     args = ap.parse_args(argv)
     from samples.generate import benchmark_suite
@@ -148,10 +151,44 @@ def main(argv=None):
         result["ours_median_time"] = float(np.median(times))
         result["ours_median_cpu_time"] = float(np.median(cpu))
         result["load_average"] = load
+    if args.external is not None:
+        result["external"] = run_external(args.external or ["paper8", "hard4", "heliosdev8"], args.seeds)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
     print(f"wrote {out}")
+
+
+def run_external(sets, seeds) -> dict:
+    """The external sets (benchmarks/seg_external.py), one table row per set, ours beside the
+    paper's rules; tuned on: samples/ and heliosdev8 seed 1 (see README)."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import external_plants
+    import seg_external
+
+    if external_plants.shared_plants_dir() is None:
+        print("../shared/plants is absent: the external sets are skipped")
+        return {}
+    out = {}
+    for name in sets:
+        rows = {m: [] for m in ("ours", "paper")}
+        for seed in seeds:
+            for folder in external_plants.plants(external_plants.ensure_set(name, seed)):
+                for m in rows:
+                    r = seg_external.run_plant(folder, paper_rules=(m == "paper"))
+                    rows[m].append({**r, "seed": seed})
+                print(f"{name}-{seed} {folder.name:<26} ours mIoU {rows['ours'][-1]['miou']:6.2f} "
+                      f"({rows['ours'][-1]['time']:.1f}s)  paper rules mIoU {rows['paper'][-1]['miou']:6.2f}",
+                      flush=True)
+        out[name] = {m: {"summary": seg_external.summary(v), "plants": v} for m, v in rows.items()}
+    print(f"\n== external sets, seeds {seeds}: Acc / mIoU / mF1 / PQ (mean over plants), "
+          "confidence ROC AUC (wrong leaf = IoU < 0.5)")
+    print(f"{'set':<12}{'plants':>7}  {'ours':<34}{'AUC':>6}  paper rules")
+    for name, v in out.items():
+        o, p = v["ours"]["summary"], v["paper"]["summary"]
+        print(f"{name:<12}{o['n']:>7}  {o['acc']:6.2f} {o['miou']:6.2f} {o['mf1']:6.2f} {o['pq']:6.2f}"
+              f"{'':>6}{o['auc']:8.3f}  {p['acc']:6.2f} {p['miou']:6.2f} {p['mf1']:6.2f} {p['pq']:6.2f}")
+    return out
 
 
 if __name__ == "__main__":

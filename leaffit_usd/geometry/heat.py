@@ -62,7 +62,9 @@ def voxel_subsample(points: np.ndarray, target: int) -> np.ndarray:
     best = None
     for _ in range(8):
         keys = np.floor((points - lo) / size).astype(np.int64)
-        _, first = np.unique(keys, axis=0, return_index=True)
+        dims = keys.max(0) + 1  # one int64 key per voxel: a 1-D unique is ~10x faster than rows
+        _, first = np.unique((keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2],
+                             return_index=True)
         best = np.sort(first)
         ratio = len(best) / target
         if 0.9 <= ratio <= 1.15:

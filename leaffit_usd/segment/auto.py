@@ -484,14 +484,12 @@ def _segment_blades(pts, root, inlier, normals, p: SegmentParams, tm: dict, t0: 
     res = segment_blades(pts, root, inlier, normals, p, tm)
     labels = res.labels.copy()
     d_root = res.d_root.copy()
-    reach = np.isfinite(d_root) | ~inlier
     lost = int((~np.isfinite(d_root) & inlier).sum())
     if lost:
-        (log.warning if lost > 0.005 * len(pts) else log.info)(
-            "the cloud is disconnected: %d of %d Gaussians are not connected to the root and stay "
-            "unassigned", lost, len(pts))
+        log.info("the cloud is in pieces: %d of %d Gaussians are not connected to the root (no "
+                 "root distance; their leaves are still found)", lost, len(pts))
     if (~inlier).any() and inlier.sum() > 1:
-        _attach_outliers(pts, labels, d_root, inlier, reach, p)
+        _attach_outliers(pts, labels, d_root, inlier, np.ones(len(pts), bool), p)
     n_leaves = len(res.leaf_tip)
     tree_leaf = labels[res.tree_nodes].astype(np.int32)
     tm["total"] = time.perf_counter() - t0
@@ -548,11 +546,28 @@ def _attach_outliers(pts, labels, d_root, inlier, reach, p: SegmentParams, k: in
     d_root[out[near]] = d_root[ok[j[near]]] + d[near]
 
 
+INLIER_SUBSAMPLE = 200_000  # above this many Gaussians the floater test runs on a voxel subsample
+
+
 def _inliers(pts: np.ndarray, factor: float, k: int = 8) -> np.ndarray:
-    """(N,) bool: False for isolated Gaussians (8th-neighbour distance > factor x median)."""
+    """(N,) bool: False for isolated Gaussians (8th-neighbour distance > factor x median).
+
+    Above ``INLIER_SUBSAMPLE`` Gaussians the test runs on a voxel subsample of that size (one
+    Gaussian per occupied voxel keeps every isolated one) and a Gaussian is a floater when its
+    nearest inlier of the subsample is farther than the factor x the subsample's median
+    8th-neighbour distance: the same test at the subsample's spacing, ~10x cheaper at 1M."""
     n = len(pts)
     if factor <= 0 or n <= k + 1:
         return np.ones(n, bool)
+    if n > INLIER_SUBSAMPLE:
+        from leaffit_usd.geometry.heat import voxel_subsample
+
+        sub = voxel_subsample(pts, INLIER_SUBSAMPLE)
+        ok = sub[_inliers(pts[sub], factor, k)]
+        tree = cKDTree(pts[ok])
+        med = float(np.median(tree.query(pts[ok[:: max(1, len(ok) // 20000)]], k=k + 1)[0][:, -1]))
+        d, _ = tree.query(pts, k=1, workers=-1)
+        return d <= factor * med
     d, _ = cKDTree(pts).query(pts, k=k + 1, workers=-1)
     dk = d[:, -1]
     med = np.median(dk)

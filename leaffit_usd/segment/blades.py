@@ -161,11 +161,15 @@ def normal_tensor_ratio(normals: np.ndarray) -> float:
     return float(ev[1] / max(ev[2], 1e-12))
 
 
-def _tensor_ratio_within(points, normals, queries, radius, k=64) -> np.ndarray:
+def _tensor_ratio_within(points, normals, queries, radius, k=64, known=None) -> np.ndarray:
     """(Q,) second / first eigenvalue of ``mean n n^T`` over the (up to ``k`` nearest) ``points``
-    within ``radius`` of each of ``queries`` ((Q, 3))."""
-    d, nb = cKDTree(points).query(queries, k=int(min(k, len(points))), workers=-1)
-    d, nb = d.reshape(len(queries), -1), nb.reshape(len(queries), -1)
+    within ``radius`` of each of ``queries`` ((Q, 3)); ``known`` = (dists, neighbours) when the
+    neighbours are already at hand."""
+    if known is None:
+        d, nb = cKDTree(points).query(queries, k=int(min(k, len(points))), workers=-1)
+        d, nb = d.reshape(len(queries), -1), nb.reshape(len(queries), -1)
+    else:
+        d, nb = known
     w = (d <= radius).astype(np.float64)
     nn = normals[nb]
     t = np.einsum("mk,mki,mkj->mij", w, nn, nn) / np.maximum(w.sum(1), 1)[:, None, None]
@@ -179,7 +183,8 @@ def tube_mask(g: SurfaceGraph, params) -> np.ndarray:
     ``TUBE_WIDE`` ratios within larger radii (a stem thicker than ``stalk_radius`` is locally
     flat at that radius; the wide tests run on a coarser subsample so that 64 neighbours reach
     that far). Unsmoothed; see :func:`smooth_mask`."""
-    tube = _tensor_ratio_within(g.points, g.normals, g.points, params.stalk_radius) > params.stalk_ratio
+    tube = _tensor_ratio_within(g.points, g.normals, g.points, params.stalk_radius,
+                                known=(g.dists, g.neighbors)) > params.stalk_ratio
     for factor, ratio in TUBE_WIDE:
         coarse = voxel_subsample(g.points, max(64, g.size // (factor * factor)))
         wide = _tensor_ratio_within(g.points[coarse], g.normals[coarse], g.points,
@@ -440,12 +445,13 @@ def segment_blades(pts: np.ndarray, root: int, inlier: np.ndarray, normals, para
     timings["graph"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    heat_domain = g.domain[voxel_subsample(g.points, max(64, g.size // HEAT_SUBSAMPLE))]
-    solver = GeodesicSolver(pts, None, domain=np.union1d(heat_domain, [g.domain[source]]),
+    heat = voxel_subsample(g.points, max(64, g.size // HEAT_SUBSAMPLE))
+    heat = np.union1d(heat, [source])
+    _, to_heat = cKDTree(g.points[heat]).query(g.points, k=1, workers=-1)
+    solver = GeodesicSolver(g.points[heat], None,
                             bridge_gap=params.bridge_gap if params.bridge_gap > 0 else None)
-    d_all = solver.distance(int(g.domain[source]))
-    d_all[~inlier] = np.inf
-    d_root = d_all[g.domain]
+    d_heat = solver.distance(int(np.searchsorted(heat, source)))
+    d_root = d_heat[to_heat] + np.linalg.norm(g.points - g.points[heat][to_heat], axis=1)
     timings["distance_root"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -459,7 +465,7 @@ def segment_blades(pts: np.ndarray, root: int, inlier: np.ndarray, normals, para
     timings["leaves"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    out = _to_gaussians(pts, g, found, conf, d_all * reach, d_root, source, inlier)
+    out = _to_gaussians(pts, g, found, conf, reach, d_root, source, inlier)
     timings["labels"] = time.perf_counter() - t
     return out
 
@@ -472,7 +478,7 @@ def _source_node(g: SurfaceGraph, root_point: np.ndarray) -> int:
     return int(main[np.argmin(np.linalg.norm(g.points[main] - root_point, axis=1))])
 
 
-def _to_gaussians(pts, g: SurfaceGraph, found: BladeLeaves, conf, d_all, d_root, root_d, inlier):
+def _to_gaussians(pts, g: SurfaceGraph, found: BladeLeaves, conf, reach, d_root, root_d, inlier):
     """Step 6: order leaves by base D_r, labels for every Gaussian (nearest domain point), tips,
     bases and the shortest-path tree from the root to every tip."""
     n_leaves = len(found.was_split)
@@ -489,9 +495,11 @@ def _to_gaussians(pts, g: SurfaceGraph, found: BladeLeaves, conf, d_all, d_root,
     rank[order] = np.arange(n_leaves)
     relabel = np.concatenate([[0], rank + 1])
     lab_sorted = relabel[lab]
-    _, near = cKDTree(g.points).query(pts, k=1, workers=-1)
+    dn, near = cKDTree(g.points).query(pts, k=1, workers=-1)
+    d_all = (d_root[near] + dn) * reach
+    d_all[~inlier] = np.inf
     labels = lab_sorted[near].astype(np.int32)
-    labels[~inlier | ~np.isfinite(d_all)] = 0
+    labels[~inlier] = 0  # a piece cut off from the root (a hole) keeps its leaves
     _, pred = dijkstra(g.graph, indices=root_d, return_predecessors=True)
     nodes, parent = _shortest_path_tree(pred, root_d, tips_d[order])
     return BladeResult(labels=labels, leaf_tip=g.domain[tips_d[order]], leaf_base=g.domain[bases_d[order]],
