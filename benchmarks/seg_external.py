@@ -60,7 +60,7 @@ def run_plant(folder: Path, paper_rules: bool = False, given_up: bool = False) -
     gt = np.load(folder / "gt.npz", allow_pickle=True)
     t0 = time.perf_counter()
     cloud = load_cloud(str(folder / "point_cloud.ply"))
-    root = ",".join(f"{v:.6g}" for v in gt["root"])
+    root = np.asarray(gt["root"], np.float64)  # a click on the stem base, input frame
     fc = make_frame(cloud, up=gt["up"] if given_up else None, root=root)
     pts = fc.frame.to_working(cloud.means)
     prm = SegmentParams.paper() if paper_rules else SegmentParams()
