@@ -73,6 +73,7 @@ SPLIT_CONFIDENCE = 0.6   # confidence factor of a leaf cut from a larger blade
 # within twice, and >= ~150 degrees within four times the radius; a leaf blade does not
 TUBE_WIDE = ((2, 0.5), (4, 0.7))
 PALM_BALANCE = 0.2       # leaflets cut apart at their bases are of comparable size (>= 1/5)
+ISLAND_GAP = 0.1         # pieces farther than this (plant reach units) from the plant are not it
 HEAT_SUBSAMPLE = 3       # the root distance's heat operator runs on every 3rd graph point (voxel)
 
 
@@ -99,6 +100,13 @@ class SurfaceGraph:
     @property
     def size(self) -> int:
         return len(self.domain)
+
+    def scale(self, factor: float) -> None:
+        """Multiply every length (points, spacing, distances, edge lengths) by ``factor``, in place."""
+        self.points = self.points * factor
+        self.spacing = self.spacing * factor
+        self.dists = self.dists * factor
+        self.graph = self.graph * factor
 
     def subgraph(self, mask: np.ndarray) -> csr_matrix:
         """The graph restricted to edges with both ends in ``mask`` ((M,) bool)."""
@@ -422,26 +430,29 @@ class BladeResult:
     d_root: np.ndarray         # (N,) float64, heat-method distance from the root (inf: unreached)
 
 
-def plant_reach(pts: np.ndarray, root: int, inlier: np.ndarray) -> float:
-    """The plant's reach from its root: the 99th percentile of the Gaussians' distances from it
-    (working units; the plant height for an upright plant, whatever up axis the frame chose)."""
-    d = np.linalg.norm(pts[inlier] - pts[root], axis=1)
-    return float(np.percentile(d, 99)) if len(d) else 1.0
+def plant_reach(g: SurfaceGraph, source: int) -> float:
+    """The plant's reach from its root: the 99th percentile of the distances of the root's
+    connected piece from the root point ``source`` (graph units; the plant height for an upright
+    plant, whatever up axis the frame chose; clutter apart from the plant does not count)."""
+    _, comp = connected_components(g.graph, directed=False)
+    d = np.linalg.norm(g.points[comp == comp[source]] - g.points[source], axis=1)
+    return float(np.percentile(d, 99)) if len(d) > 1 else 1.0
 
 
 def segment_blades(pts: np.ndarray, root: int, inlier: np.ndarray, normals, params,
                    timings: dict) -> BladeResult:
     """Steps 1-6. pts : (N, 3) working frame; inlier : (N,) bool (floaters False).
 
-    The radii (``stalk_radius``, ``bridge_gap``) are in units of :func:`plant_reach`, which is
+    The radii (``stalk_radius``, ``bridge_gap``, ``ISLAND_GAP``) are in units of :func:`plant_reach`, which is
     the working unit (plant height) when the up axis is right and does not change when the
     estimated up axis is wrong (the height along a wrong axis can be a fraction of the plant).
     """
-    reach = plant_reach(pts, root, inlier)
-    pts = np.asarray(pts, np.float64) / max(reach, 1e-12)
     t = time.perf_counter()
     g = build_surface_graph(pts, normals, inlier, params)
     source = _source_node(g, pts[root])
+    reach = max(plant_reach(g, source), 1e-12)
+    g.scale(1.0 / reach)
+    pts = np.asarray(pts, np.float64) / reach
     timings["graph"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -460,7 +471,14 @@ def segment_blades(pts: np.ndarray, root: int, inlier: np.ndarray, normals, para
     tube = smooth_mask(sheet, raw)
     stem = rooted_stem(g, tube, d_root, params.attach_link * float(np.median(g.spacing)),
                        max(20, int(params.min_leaf_fraction * g.size)))
-    found = find_leaves(g, sheet, stem, d_root, params)
+    far = far_pieces(g, source, ISLAND_GAP)
+    if far.any():
+        log.warning("the cloud is disconnected: %d of %d graph points lie more than %.2g plant "
+                    "heights from the plant and stay unassigned", int(far.sum()), g.size, ISLAND_GAP)
+        sheet = _restrict(sheet, ~far)
+        stem = stem & ~far
+    found = find_leaves(g, sheet, stem | far, d_root, params)
+    found.stem &= ~far
     conf = leaf_confidence(g, found)
     timings["leaves"] = time.perf_counter() - t
 
@@ -476,6 +494,23 @@ def _source_node(g: SurfaceGraph, root_point: np.ndarray) -> int:
     _, comp = connected_components(g.graph, directed=False)
     main = np.flatnonzero(comp == np.argmax(np.bincount(comp)))
     return int(main[np.argmin(np.linalg.norm(g.points[main] - root_point, axis=1))])
+
+
+def far_pieces(g: SurfaceGraph, source: int, gap: float) -> np.ndarray:
+    """(M,) bool: graph points of pieces farther than ``gap`` from the root's piece (something
+    else in the capture, not a piece of the plant cut off by a hole in the sampling)."""
+    _, comp = connected_components(g.graph, directed=False)
+    main = comp == comp[source]
+    far = np.zeros(g.size, bool)
+    if main.all():
+        return far
+    d, _ = cKDTree(g.points[main]).query(g.points[~main], k=1, workers=-1)
+    others = np.flatnonzero(~main)
+    for c in np.unique(comp[others]):
+        sel = comp[others] == c
+        if d[sel].min() > gap:
+            far[others[sel]] = True
+    return far
 
 
 def _to_gaussians(pts, g: SurfaceGraph, found: BladeLeaves, conf, reach, d_root, root_d, inlier):
