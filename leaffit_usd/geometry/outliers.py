@@ -5,17 +5,33 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 
+SUBSAMPLE_ABOVE = 200_000  # above this many points the test runs on a voxel subsample
+
+
 def inlier_mask(points: np.ndarray, factor: float, k: int = 8) -> np.ndarray:
     """(N,) bool: False for isolated points, whose k-th neighbour is farther than ``factor`` x
     the median k-th-neighbour distance.
 
     points : (N, 3) float, any frame (the test is scale-free). Everything is an inlier when
     ``factor <= 0``, when there are at most ``k + 1`` points, or when the median distance is 0.
+    Above ``SUBSAMPLE_ABOVE`` points the test runs on a voxel subsample of that size (one point
+    per occupied voxel keeps every isolated one) and a point is a floater when its nearest inlier
+    of the subsample is farther than ``factor`` x the subsample's median k-th-neighbour
+    distance: the same test at the subsample's spacing, ~3x cheaper at 1M points.
     """
     pts = np.asarray(points, np.float64)
     n = len(pts)
     if factor <= 0 or n <= k + 1:
         return np.ones(n, bool)
+    if n > SUBSAMPLE_ABOVE:
+        from leaffit_usd.geometry.heat import voxel_subsample
+
+        sub = voxel_subsample(pts, SUBSAMPLE_ABOVE)
+        ok = sub[inlier_mask(pts[sub], factor, k)]
+        tree = cKDTree(pts[ok])
+        med = float(np.median(tree.query(pts[ok[:: max(1, len(ok) // 20000)]], k=k + 1)[0][:, -1]))
+        d, _ = tree.query(pts, k=1, workers=-1)
+        return d <= factor * med
     d, _ = cKDTree(pts).query(pts, k=k + 1, workers=-1)
     dk = d[:, -1]
     med = np.median(dk)

@@ -89,6 +89,7 @@ from scipy.spatial import cKDTree
 
 from leaffit_usd.errors import ParameterError, UserError
 from leaffit_usd.geometry.heat import GeodesicSolver
+from leaffit_usd.geometry.outliers import inlier_mask
 from leaffit_usd.geometry.sampling import farthest_point_sampling
 from leaffit_usd.segment.result import Segmentation
 
@@ -286,7 +287,7 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
 
     # -- outliers, samples and geodesic domain ----------------------------------------------
     rng = np.random.default_rng(p.seed)
-    inlier = _inliers(pts, p.outlier_factor)
+    inlier = inlier_mask(pts, p.outlier_factor)
     inlier[root] = True
     if (~inlier).any():
         log.info("%d isolated Gaussians (floaters) left out of the segmentation", int((~inlier).sum()))
@@ -546,36 +547,6 @@ def _attach_outliers(pts, labels, d_root, inlier, reach, p: SegmentParams, k: in
     d_root[out[near]] = d_root[ok[j[near]]] + d[near]
 
 
-INLIER_SUBSAMPLE = 200_000  # above this many Gaussians the floater test runs on a voxel subsample
-
-
-def _inliers(pts: np.ndarray, factor: float, k: int = 8) -> np.ndarray:
-    """(N,) bool: False for isolated Gaussians (8th-neighbour distance > factor x median).
-
-    Above ``INLIER_SUBSAMPLE`` Gaussians the test runs on a voxel subsample of that size (one
-    Gaussian per occupied voxel keeps every isolated one) and a Gaussian is a floater when its
-    nearest inlier of the subsample is farther than the factor x the subsample's median
-    8th-neighbour distance: the same test at the subsample's spacing, ~10x cheaper at 1M."""
-    n = len(pts)
-    if factor <= 0 or n <= k + 1:
-        return np.ones(n, bool)
-    if n > INLIER_SUBSAMPLE:
-        from leaffit_usd.geometry.heat import voxel_subsample
-
-        sub = voxel_subsample(pts, INLIER_SUBSAMPLE)
-        ok = sub[_inliers(pts[sub], factor, k)]
-        tree = cKDTree(pts[ok])
-        med = float(np.median(tree.query(pts[ok[:: max(1, len(ok) // 20000)]], k=k + 1)[0][:, -1]))
-        d, _ = tree.query(pts, k=1, workers=-1)
-        return d <= factor * med
-    d, _ = cKDTree(pts).query(pts, k=k + 1, workers=-1)
-    dk = d[:, -1]
-    med = np.median(dk)
-    if med <= 0:
-        return np.ones(n, bool)
-    return dk <= factor * med
-
-
 def _build_tree(solver: GeodesicSolver, dr_dom, apex_g, root, p: SegmentParams):
     """Rootward tree by steepest descent of D_r with the deferred-merge rule.
 
@@ -743,20 +714,15 @@ def _result(n, root, samples, tree, apex_g, apex_labels, leaf_tip, leaf_base, la
 
 
 def working_normals(cloud, rotation: np.ndarray | None = None, flat_ratio: float = 0.5) -> np.ndarray:
-    """(N, 3) float64 unit normals of a GaussianCloud's Gaussians, for orientation-aware geodesics.
-
-    The normal is the smallest-scale axis; it is NaN (unknown) where the Gaussian is not flat
-    (smallest scale > ``flat_ratio`` x middle scale: a stem Gaussian's two small axes are alike).
+    """(N, 3) float64 unit normals of a GaussianCloud's Gaussians (``cloud.shortest_axes()``) in
+    the working frame, NaN where the Gaussian is not flat (smallest scale > ``flat_ratio`` x the
+    middle one: a round Gaussian's smallest axis says nothing about a surface).
     rotation : (3, 3) input axes -> working axes (``Frame.rotation``); None keeps the input frame.
     """
-    R = cloud.rotation_matrices().astype(np.float64)
-    s = cloud.scales.astype(np.float64)
-    order = np.argsort(s, axis=1)
-    n = np.take_along_axis(R, order[:, None, :1], axis=2)[:, :, 0]
+    n = cloud.shortest_axes().astype(np.float64)
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    s_sorted = np.take_along_axis(s, order, axis=1)
-    flat = s_sorted[:, 0] <= flat_ratio * s_sorted[:, 1]
+    s = np.sort(cloud.scales.astype(np.float64), axis=1)
     if rotation is not None:
         n = n @ np.asarray(rotation, np.float64).T
-    n[~flat] = np.nan
+    n[s[:, 0] > flat_ratio * s[:, 1]] = np.nan
     return n
