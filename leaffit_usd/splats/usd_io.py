@@ -113,40 +113,12 @@ def read_usd_splats(path: str | os.PathLike, prim: str | None = None, drop_bad: 
     """
     Sdf, Usd, UsdGeom, UsdVol, Vt = _pxr()
     path = Path(path)
-    stage = open_stage(path)
-    if prim is not None:
-        if not Sdf.Path.IsValidPathString(prim) or not Sdf.Path(prim).IsAbsolutePath():
-            raise InputFileError(path, f"--prim {prim!r} is not an absolute prim path like /World/Plant")
-        p = stage.GetPrimAtPath(prim)
-        if not p or not p.IsValid():
-            found = ", ".join(str(q.GetPath()) for q in find_splat_prims(stage)[:5]) or "none"
-            raise InputFileError(path, f"no prim at {prim} (splat prims: {found})")
-        if p.GetTypeName() != SCHEMA:
-            raise InputFileError(path, f"prim {prim} is a {p.GetTypeName() or 'typeless prim'}, "
-                                       f"not a {SCHEMA}")
-    else:
-        prims = find_splat_prims(stage)
-        if not prims:
-            raise InputFileError(path, f"no {SCHEMA} prim in this stage")
-        if len(prims) > 1:
-            names = ", ".join(str(q.GetPath()) for q in prims[:5]) + (" ..." if len(prims) > 5 else "")
-            raise InputFileError(path, f"{len(prims)} {SCHEMA} prims ({names}); choose one with --prim")
-        p = prims[0]
+    stage = open_stage(path)  # keep a reference: its prims expire with it
+    p = _splat_prim(stage, path, prim)
     where = f"{path}:{p.GetPath()}"
-    splat = UsdVol.ParticleField3DGaussianSplat(p)
 
     def get(name, hname, width):
-        for n in (name, hname):
-            attr = p.GetAttribute(n)
-            if attr and attr.HasAuthoredValue() or (attr and attr.GetNumTimeSamples()):
-                value = attr.Get(_read_time(attr))
-                if value is None:
-                    continue
-                a = np.asarray(value, dtype=np.float32)
-                if width:
-                    a = a.reshape(-1, width)
-                return a
-        return None
+        return _get_array(p, name, hname, width)
 
     means = get("positions", "positionsh", 3)
     if means is None:
@@ -178,25 +150,81 @@ def read_usd_splats(path: str | os.PathLike, prim: str | None = None, drop_bad: 
         o[~np.isfinite(opac)] = np.nan
         logits = np.log(o / (1 - o)).astype(np.float32)
 
+    sh = _read_sh(UsdVol.ParticleField3DGaussianSplat(p), get, n, where)
+    cloud = GaussianCloud(means=np.ascontiguousarray(means), log_scales=log_scales, quats=quats,
+                          opacity_logits=logits, sh=sh, extra=_read_extra(p, n))
+    if apply_transform:
+        m = np.asarray(UsdGeom.Xformable(p).ComputeLocalToWorldTransform(Usd.TimeCode.Default()),
+                       np.float64).T  # Gf matrices are row-vector convention
+        if not np.allclose(m, np.eye(4), atol=0, rtol=0):
+            from leaffit_usd.splats.transform import transform_cloud
+
+            cloud = transform_cloud(cloud, m, allow_affine=True)
+    return drop_invalid(cloud, where) if drop_bad else cloud
+
+
+def _splat_prim(stage, path: Path, prim: str | None):
+    """The splat prim to read: ``prim`` (checked), or the stage's only one. InputFileError."""
+    Sdf = _pxr()[0]
+    if prim is not None:
+        if not Sdf.Path.IsValidPathString(prim) or not Sdf.Path(prim).IsAbsolutePath():
+            raise InputFileError(path, f"--prim {prim!r} is not an absolute prim path like /World/Plant")
+        p = stage.GetPrimAtPath(prim)
+        if not p or not p.IsValid():
+            found = ", ".join(str(q.GetPath()) for q in find_splat_prims(stage)[:5]) or "none"
+            raise InputFileError(path, f"no prim at {prim} (splat prims: {found})")
+        if p.GetTypeName() != SCHEMA:
+            raise InputFileError(path, f"prim {prim} is a {p.GetTypeName() or 'typeless prim'}, "
+                                       f"not a {SCHEMA}")
+        return p
+    prims = find_splat_prims(stage)
+    if not prims:
+        raise InputFileError(path, f"no {SCHEMA} prim in this stage")
+    if len(prims) > 1:
+        names = ", ".join(str(q.GetPath()) for q in prims[:5]) + (" ..." if len(prims) > 5 else "")
+        raise InputFileError(path, f"{len(prims)} {SCHEMA} prims ({names}); choose one with --prim")
+    return prims[0]
+
+
+def _get_array(p, name: str, hname: str, width: int):
+    """Attribute ``name`` (or its half-precision twin ``hname``) as float32 (M, width), or None."""
+    for n in (name, hname):
+        attr = p.GetAttribute(n)
+        if attr and attr.HasAuthoredValue() or (attr and attr.GetNumTimeSamples()):
+            value = attr.Get(_read_time(attr))
+            if value is None:
+                continue
+            a = np.asarray(value, dtype=np.float32)
+            if width:
+                a = a.reshape(-1, width)
+            return a
+    return None
+
+
+def _read_sh(splat, get, n: int, where: str) -> np.ndarray:
+    """(n, (degree + 1)^2, 3) float32 SH coefficients (DC only when none are authored)."""
     deg_attr = splat.GetRadianceSphericalHarmonicsDegreeAttr()
     coeffs = get("radiance:sphericalHarmonicsCoefficients", "radiance:sphericalHarmonicsCoefficientsh", 3)
     if coeffs is None:
-        sh = np.zeros((n, 1, 3), np.float32)  # schema: missing -> DC (0.5, 0.5, 0.5) = coefficient 0
-    else:
-        degree = deg_attr.Get() if deg_attr else 3
-        if degree is None:
-            degree = 3
-        degree = int(degree)
-        if degree not in REST_COUNTS:
-            raise InputFileError(where, f"radiance:sphericalHarmonicsDegree is {degree}; supported 0-3")
-        c = (degree + 1) ** 2
-        if len(coeffs) < n * c:
-            raise InputFileError(where, f"{len(coeffs)} SH coefficients for {n} particles of SH degree "
-                                        f"{degree} (need {n * c})")
-        if len(coeffs) > n * c:
-            log.warning("%s: %d extra SH coefficients ignored", where, len(coeffs) - n * c)
-        sh = np.ascontiguousarray(coeffs[: n * c].reshape(n, c, 3))
+        return np.zeros((n, 1, 3), np.float32)  # schema: missing -> DC (0.5, 0.5, 0.5) = coefficient 0
+    degree = deg_attr.Get() if deg_attr else 3
+    if degree is None:
+        degree = 3
+    degree = int(degree)
+    if degree not in REST_COUNTS:
+        raise InputFileError(where, f"radiance:sphericalHarmonicsDegree is {degree}; supported 0-3")
+    c = (degree + 1) ** 2
+    if len(coeffs) < n * c:
+        raise InputFileError(where, f"{len(coeffs)} SH coefficients for {n} particles of SH degree "
+                                    f"{degree} (need {n * c})")
+    if len(coeffs) > n * c:
+        log.warning("%s: %d extra SH coefficients ignored", where, len(coeffs) - n * c)
+    return np.ascontiguousarray(coeffs[: n * c].reshape(n, c, 3))
 
+
+def _read_extra(p, n: int) -> dict:
+    """Per-Gaussian primvars (1-D, n values) in their written order and dtype."""
+    UsdGeom = _pxr()[2]
     extra = {}
     for pv in UsdGeom.PrimvarsAPI(p).GetPrimvarsWithAuthoredValues():
         name = pv.GetPrimvarName()
@@ -214,17 +242,7 @@ def read_usd_splats(path: str | os.PathLike, prim: str | None = None, drop_bad: 
     if order:
         rank = {k: i for i, k in enumerate(order)}
         extra = dict(sorted(extra.items(), key=lambda kv: rank.get(kv[0], len(rank))))
-
-    cloud = GaussianCloud(means=np.ascontiguousarray(means), log_scales=log_scales, quats=quats,
-                          opacity_logits=logits, sh=sh, extra=extra)
-    if apply_transform:
-        m = np.asarray(UsdGeom.Xformable(p).ComputeLocalToWorldTransform(Usd.TimeCode.Default()),
-                       np.float64).T  # Gf matrices are row-vector convention
-        if not np.allclose(m, np.eye(4), atol=0, rtol=0):
-            from leaffit_usd.splats.transform import transform_cloud
-
-            cloud = transform_cloud(cloud, m, allow_affine=True)
-    return drop_invalid(cloud, where) if drop_bad else cloud
+    return extra
 
 
 def _read_time(attr):
