@@ -1,6 +1,8 @@
 """``convert``: 3DGS capture -> LeafFit USD asset, the whole pipeline in one call.
 
-    load_cloud -> make_frame (up, root) -> transform_cloud (working frame)
+    load_cloud -> isolate_plant (table, pot, soil, background, floaters removed; --keep-scene
+      turns it off) -> make_frame (up, root: the table normal and the stem base at the soil
+      when isolation found them) -> transform_cloud (working frame)
       -> segment_plant  (or --labels L.npz, then --edits E.json)
       -> fit_leaves -> build_template_mesh + build_stem
       -> asset_from_results (working -> asset frame) -> write_stage (atomic)
@@ -23,6 +25,7 @@ import numpy as np
 from leaffit_usd import __version__
 from leaffit_usd.errors import InputFileError, ParameterError
 from leaffit_usd.fit.params import FitParams
+from leaffit_usd.isolate import IsolateParams
 from leaffit_usd.mesh.stem import StemParams
 from leaffit_usd.mesh.template import MeshParams
 from leaffit_usd.segment.auto import SegmentParams
@@ -47,6 +50,9 @@ class ConvertOptions:
     up_axis : the stage's up axis, "Y" or "Z"; meters_per_unit; height_m : real plant height
     sheet_offset : front/back sheet separation, fraction of the template's extent (None: the
         default ``usd.assemble.DEFAULT_SHEET_OFFSET``)
+    keep_scene : skip plant isolation (the input is already a trimmed plant)
+    crop : "box:X0,Y0,Z0,X1,Y1,Z1" or "sphere:CX,CY,CZ,R" (input frame): keep only that region
+    isolate : ``IsolateParams`` of the isolation stage
     """
 
     up: np.ndarray | None = None
@@ -63,6 +69,9 @@ class ConvertOptions:
     meters_per_unit: float = 1.0
     height_m: float | None = None
     sheet_offset: float | None = None
+    keep_scene: bool = False
+    crop: str | None = None
+    isolate: IsolateParams = field(default_factory=IsolateParams)
 
 
 def _to_dict(p) -> dict:
@@ -161,6 +170,77 @@ def _segmentation_from_labels(cloud_working, labels, root_index, seg_params, aut
                       params={**dict(auto_seg.params or {}), "labels_from": "file"})
 
 
+def _user_up(up):
+    """The user's up as a (3,) unit vector (input frame), or None for auto."""
+    if up is None or (isinstance(up, str) and up.strip().lower() == "auto"):
+        return None
+    if isinstance(up, str):
+        raise ParameterError("up", "'auto', None or a (3,) vector (commands._args.parse_up reads CLI text)", up)
+    u = np.asarray(up, np.float64)
+    if u.shape != (3,) or not np.isfinite(u).all() or np.linalg.norm(u) < 1e-12:
+        raise ParameterError("up", "a non-zero (3,) vector", up)
+    return u / np.linalg.norm(u)
+
+
+def isolate_stage(cloud, keep_scene: bool = False, crop=None, up=None, params: IsolateParams | None = None):
+    """Plant isolation for a command: ``(plant cloud, Isolation)``.
+
+    cloud : GaussianCloud, input frame; keep_scene : skip the automatic classification (the
+    crop, when given, still applies); crop : a ``Crop`` or its text; up : the user's ``--up``
+    (None/"auto", an axis text or a vector). The plant cloud is ``cloud.subset(plant)``: its
+    ``file_index`` still names each Gaussian's position in the input file. Logs what each
+    class removed. Raises UserError when nothing is left.
+    """
+    from leaffit_usd.isolate import Crop, Isolation, isolate_plant
+
+    if crop is not None and not isinstance(crop, Crop):
+        crop = Crop.parse(crop)
+    params = (params or IsolateParams()).validate()
+    if keep_scene:
+        classes = np.zeros(len(cloud), np.uint8)
+        if crop is not None:
+            from leaffit_usd.isolate import BACKGROUND
+
+            classes[~crop.contains(cloud.means)] = BACKGROUND
+        iso = Isolation(classes, enabled=False,
+                        params={"keep_scene": True, "crop": None if crop is None else str(crop)})
+    else:
+        iso = isolate_plant(cloud, params, up=_user_up(up), crop=crop)
+    log.info("      isolation: %s", iso.describe())
+    if iso.up is not None:
+        log.info("      up from the %s: (%.3f, %.3f, %.3f)", iso.up_source, *iso.up)
+    keep = iso.plant_mask
+    if keep.sum() < 10:
+        raise InputFileError("input", f"isolation left {int(keep.sum())} Gaussians of {len(cloud)} "
+                             "(check --crop, or pass --keep-scene for a trimmed plant)")
+    return (cloud if keep.all() else cloud.subset(keep)), iso
+
+
+def frame_from_isolation(plant, iso, up=None, root=None, root_index=None, cloud=None):
+    """``splats.frame.make_frame`` on the isolated plant, with the scene's cues when the user
+    left them to us: ``up`` None (auto) -> the table normal; ``root`` None and no ``root_index``
+    -> the stem base at the soil (``iso.root_index`` indexes ``cloud``, the cloud isolation ran
+    on). up : (3,) vector or None; root : (3,) point or None, input frame."""
+    from leaffit_usd.splats.frame import make_frame
+
+    auto_up = up is None
+    auto_root = root is None and root_index is None
+    if auto_up and iso.up is not None:
+        up = np.asarray(iso.up, np.float64)
+    if auto_root and iso.root_index is not None and cloud is not None:
+        root_index = int(cloud.file_index[iso.root_index])
+        log.info("      root: the stem base at the soil (Gaussian %d)", root_index)
+    return make_frame(plant, up=up, root=root, root_index=root_index)
+
+
+def encode_classes(cloud, iso) -> str:
+    """Isolation classes in FILE order (uint8; 255 = dropped at load), zlib + base64: compact
+    enough for a JSON report. Decode with :func:`leaffit_usd.isolate.decode_classes`."""
+    from leaffit_usd.isolate import encode_classes as enc
+
+    return enc(cloud.to_file_order(np.asarray(iso.classes, np.uint8), fill=255).astype(np.uint8))
+
+
 def convert(input_path, output_path, options: ConvertOptions | None = None) -> dict:
     """Convert a 3DGS capture (.ply / USD splats) into a LeafFit USD stage.
 
@@ -170,7 +250,6 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     """
     from leaffit_usd.io_util import file_sha256
     from leaffit_usd.splats import load_cloud
-    from leaffit_usd.splats.frame import make_frame
     from leaffit_usd.splats.transform import transform_cloud
     from leaffit_usd.usd.assemble import DEFAULT_SHEET_OFFSET, asset_from_results
     from leaffit_usd.runtime.evaluator import asset_leaves
@@ -201,13 +280,16 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     for p in (seg_p, fit_p, mesh_p, stem_p):
         p.validate()
 
-    T = _Timer(7)
+    T = _Timer(8)
     with T.stage("load", f"loading {input_path.name}"):
-        cloud = load_cloud(input_path)
+        cloud_in = load_cloud(input_path)
         sha = file_sha256(input_path)
-        log.info("      %d Gaussians (SH degree %d)", len(cloud), cloud.sh_degree)
+        log.info("      %d Gaussians (SH degree %d)", len(cloud_in), cloud_in.sh_degree)
+    with T.stage("isolate", "isolating the plant (ground, pot, soil, background, floaters)"
+                 if not o.keep_scene else "isolation off (--keep-scene)"):
+        cloud, iso = isolate_stage(cloud_in, o.keep_scene, o.crop, o.up, o.isolate)
     with T.stage("frame", "choosing the frame (up axis, root)"):
-        choice = make_frame(cloud, up=o.up, root=o.root, root_index=o.root_index)
+        choice = frame_from_isolation(cloud, iso, o.up, o.root, o.root_index, cloud=cloud_in)
         frame, root_index = choice.frame, choice.root_index
         cw = transform_cloud(cloud, frame.input_to_working)
         pts = np.asarray(cw.means, np.float64)
@@ -242,6 +324,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         "fit": _to_dict(fit_p), "mesh": _to_dict(mesh_p), "stem": _to_dict(stem_p),
         "up": "auto" if o.up is None else [float(c) for c in o.up],
         "root": "auto" if o.root is None else [float(c) for c in o.root], "root_index": o.root_index, "root_gaussian": int(cloud.file_index[root_index]),
+        "isolate": iso.params,
     }
     with T.stage("write", f"writing {output_path}"):
         asset = asset_from_results(
@@ -265,6 +348,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         "timings": {**T.timings, "total": round(time.perf_counter() - t_start, 4)},
         "counts": {
             "gaussians": int(len(cloud)), "gaussians_in_file": int(cloud.file_count),
+            "gaussians_loaded": int(len(cloud_in)),
             "leaves": int(asset.n_leaves), "K": int(asset.targets.shape[1]) if asset.n_leaves else int(fit_p.K),
             "template_label": int(fits.template_label),
             "template_vertices": int(len(asset.template_points)),
@@ -284,6 +368,11 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
             "units": "working units (plant height = 1)",
         },
         "frame": {**frame.to_dict(), "root_index": int(root_index)},
+        "isolation": {**iso.to_dict(), "removed": iso.removed(),
+                      "classes": encode_classes(cloud_in, iso),
+                      "classes_encoding": "uint8 per input Gaussian in file order (0 plant, 1 ground, "
+                                          "2 pot, 3 soil, 4 background, 5 floater, 255 dropped at "
+                                          "load), zlib, base64"},
         "params": asset.metadata.get("params", {}),
         "mesh_report": jsonable(getattr(template, "report", {})),
     }

@@ -9,7 +9,7 @@ from pathlib import Path
 
 PLANTS_DIR = Path(__file__).resolve().parent / "plants"
 
-__all__ = ["PRESETS", "GroundTruth", "PlantSpec", "benchmark_suite", "committed_plants",
+__all__ = ["PRESETS", "GroundTruth", "PlantSpec", "benchmark_suite", "capture_suite", "committed_plants",
            "load_ground_truth", "make_plant", "preset", "save_plant", "PLANTS_DIR", "ensure_plants"]
 
 

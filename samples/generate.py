@@ -77,6 +77,9 @@ class PlantSpec:
     spots : fraction of leaves with a few brown spots (damage, age)
     global_frame : apply a random similarity (input frame != canonical frame)
     hard : marks a deliberately difficult plant (set automatically when overlap != none)
+    scene : capture-like: keep a pot, soil, a table top, clutter, a back wall and scene floaters
+        around the plant, as a real capture does (``samples.scene``; about as many Gaussians
+        again as ``gaussians``, GT label -2, their class in ``GroundTruth.scene_class``)
     """
 
     kind: str = "elliptic"
@@ -103,6 +106,7 @@ class PlantSpec:
     leaf_length: float | None = None
     global_frame: bool = True
     hard: bool = False
+    scene: bool = False
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -197,7 +201,11 @@ class GroundTruth:
     overlap_types : (P,) int32: 1 touching, 2 vertical, 3 horizontal
     overlap_gaps : (P,) float64, smallest distance between the pair's GT blade meshes, input units
     canonical_to_input : (4, 4) float64 similarity, canonical (metres, root at 0, +Z up) -> input
-    spec : JSON string: {"spec": PlantSpec fields, "seed": int, "leaves": per-leaf info}
+    spec : JSON string: {"spec": PlantSpec fields, "seed": int, "leaves": per-leaf info,
+        "scene": the surroundings' layout when ``spec.scene``}
+    scene_class : (N,) int8, file order, or None for a plant without surroundings: 0 plant
+        (labels >= 0), 1 ground (table), 2 pot, 3 soil, 4 background, 5 floater (the
+        ``leaffit_usd.isolate`` class codes); scene Gaussians have ``labels`` -2
     """
 
     labels: np.ndarray
@@ -217,6 +225,7 @@ class GroundTruth:
     overlap_gaps: np.ndarray
     canonical_to_input: np.ndarray
     spec: str
+    scene_class: np.ndarray | None = None
 
     @property
     def n_leaves(self) -> int:
@@ -240,13 +249,17 @@ class GroundTruth:
         return json.loads(self.spec)
 
 
+_OPTIONAL_GT = ("scene_class",)
+
+
 def save_plant(cloud: GaussianCloud, gt: GroundTruth, directory, name: str) -> tuple[Path, Path]:
     """Write ``NAME.ply`` (INRIA 3DGS) and ``NAME.gt.npz`` into ``directory``, atomically."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     ply, gtp = d / f"{name}.ply", d / f"{name}.gt.npz"
     write_ply(cloud, ply)
-    arrays = {f.name: np.asarray(getattr(gt, f.name)) for f in dataclasses.fields(gt)}
+    arrays = {f.name: np.asarray(getattr(gt, f.name)) for f in dataclasses.fields(gt)
+              if getattr(gt, f.name) is not None}
     arrays["spec"] = np.array(gt.spec)
     with atomic_path(gtp) as tmp, open(tmp, "wb") as fh:
         np.savez_compressed(fh, **arrays)
@@ -268,11 +281,14 @@ def load_ground_truth(path) -> GroundTruth:
     except (OSError, ValueError) as e:
         raise InputFileError(path, f"not a ground-truth .npz ({e})") from None
     with z:
-        missing = [f.name for f in dataclasses.fields(GroundTruth) if f.name not in z.files]
+        missing = [f.name for f in dataclasses.fields(GroundTruth)
+                   if f.name not in z.files and f.name not in _OPTIONAL_GT]
         if missing:
             raise InputFileError(path, f"not a samples ground-truth file: missing {', '.join(missing)}")
         kw = {}
         for f in dataclasses.fields(GroundTruth):
+            if f.name not in z.files:
+                continue
             v = z[f.name]
             if f.name == "spec":
                 v = str(v)
@@ -901,7 +917,7 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
     # independent streams: structure, overlap/collision posing, Gaussian sampling, global frame
     # (so that changing how Gaussians are sampled never changes the plant's geometry)
     ss = np.random.SeedSequence([int(seed), 0x1EAF])
-    rng_build, rng_pose, rng, rng_frame = (np.random.default_rng(c) for c in ss.spawn(4))
+    rng_build, rng_pose, rng, rng_frame, rng_scene = (np.random.default_rng(c) for c in ss.spawn(5))
     axes, leaves, habit = _build(spec, rng_build)
     pairs = _place_pairs(leaves, axes, spec, rng_pose)
     _avoid_collisions(leaves, axes, pairs, rng_pose)
@@ -1006,6 +1022,20 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
     h_c = float(hz.max() - min(hz.min(), 0.0))
     k = float(np.clip(h_c, 0.3, 1.2) / h_c)
     pos, scales = pos * k, scales * k
+    scene_info = None
+    scene_class = None
+    if spec.scene:  # capture-like surroundings (own random stream: the plant is unchanged)
+        from samples.scene import make_scene
+
+        s_pos, s_sc, s_R, s_col, s_op, s_cls, scene_info = make_scene(
+            pos[labels >= 0], h_c * k, int(spec.gaussians), rng_scene)
+        scene_class = np.concatenate([np.where(labels >= 0, 0, 5), s_cls]).astype(np.int8)
+        pos, scales = np.vstack([pos, s_pos]), np.vstack([scales, s_sc])
+        R = np.concatenate([R, s_R])
+        col, opa = np.vstack([col, s_col]), np.concatenate([opa, s_op])
+        rest_sd = np.concatenate([rest_sd, np.full(len(s_pos), 0.01)])
+        labels = np.concatenate([labels, np.full(len(s_pos), -2, np.int32)])
+        petiole_of = np.concatenate([petiole_of, np.zeros(len(s_pos), np.int32)])
 
     # global similarity: canonical -> input (an SfM frame)
     if spec.global_frame:
@@ -1037,6 +1067,8 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
     cloud.quats = np.ascontiguousarray(quats[perm], np.float32)
     labels = labels[perm]
     petiole_of = petiole_of[perm]
+    if scene_class is not None:
+        scene_class = scene_class[perm]
 
     # ---- ground truth (input frame)
     def to_in(p):  # built (unscaled) canonical -> input
@@ -1075,7 +1107,9 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
                                for a, b, _ in pairs], np.float64),
         canonical_to_input=M,
         spec=json.dumps({"spec": spec.to_dict(), "seed": int(seed), "habit": habit,
-                         "canonical_height_m": height / sg, "leaves": info}),
+                         "canonical_height_m": height / sg, "leaves": info,
+                         **({"scene": scene_info} if scene_info is not None else {})}),
+        scene_class=scene_class,
     )
     return cloud, gt
 
@@ -1117,6 +1151,20 @@ def benchmark_suite(gaussians: int = 100_000) -> list[tuple[str, PlantSpec, int]
     ]
 
 
+def capture_suite(gaussians: int = 60_000) -> list[tuple[str, PlantSpec, int]]:
+    """Capture-like plants (``scene=True``: pot, soil, table, clutter, wall) for the isolation
+    benchmark: [(name, spec, seed)]. ``gaussians`` counts the plant; the scene adds as many."""
+    g = int(gaussians)
+    return [
+        ("capture_rubber_tree", preset("rubber_tree", gaussians=g, scene=True), 21),
+        ("capture_green_pepper", preset("green_pepper", gaussians=g, scene=True), 22),
+        ("capture_golden_pothos", preset("golden_pothos", gaussians=g, scene=True), 23),
+        ("capture_ruby_leaf", preset("ruby_leaf", gaussians=g, scene=True), 24),
+        ("capture_cotton_rose", preset("cotton_rose", gaussians=g, scene=True), 25),
+        ("capture_lucky_bamboo", preset("lucky_bamboo", gaussians=g, scene=True), 26),
+    ]
+
+
 #: The sample plants of the demo and the tests: name -> (spec, seed). Not in git: ``make``
 #: generates them at set-up (``python -m samples.generate --committed --out samples/plants``;
 #: ``samples.ensure_plants()`` makes the missing ones).
@@ -1153,6 +1201,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--floaters", type=float, help="fraction of floater Gaussians (default 0.003)")
     p.add_argument("--holes", type=float, help="fraction of leaves with a sparse patch (default 0.15)")
     p.add_argument("--no-global-frame", action="store_true", help="write the canonical frame (no random similarity)")
+    p.add_argument("--scene", action="store_true",
+                   help="capture-like: keep a pot, soil, a table, clutter and a back wall (label -2; "
+                        "their classes in gt.scene_class); with --suite: capture_suite()")
     p.add_argument("--out", default=".", help="output directory")
     p.add_argument("--name", help="file stem (default: preset or kind + seed)")
     p.add_argument("--suite", action="store_true", help="write every benchmark_suite() plant")
@@ -1175,7 +1226,7 @@ def main(argv=None) -> int:
                   + ("  [hard]" if spec.hard else ""))
         return 0
     if args.suite:
-        jobs = benchmark_suite(args.gaussians or 100_000)
+        jobs = (capture_suite if args.scene else benchmark_suite)(args.gaussians or 100_000)
     elif args.committed:
         jobs = [(n, s, sd) for n, (s, sd) in committed_plants().items()]
     else:
@@ -1186,6 +1237,8 @@ def main(argv=None) -> int:
             holes=args.holes).items() if v is not None}
         if args.no_global_frame:
             over["global_frame"] = False
+        if args.scene:
+            over["scene"] = True
         try:
             spec = preset(args.preset, **over) if args.preset else PlantSpec(**over)
         except (ValueError, TypeError) as e:

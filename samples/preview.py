@@ -59,7 +59,7 @@ def main(argv=None) -> int:
     M = np.linalg.inv(gt.canonical_to_input)
     pts = cloud.means.astype(np.float64) @ M[:3, :3].T + M[:3, 3]
     col = _label_colours(gt.labels) if a.labels else cloud.colors
-    keep = gt.labels >= 0 if not a.labels else np.ones(len(pts), bool)
+    keep = (gt.labels >= 0) | (gt.labels == -2) if not a.labels else np.ones(len(pts), bool)
     img = render_views(pts[keep], col[keep], a.size)
     from leaffit_usd.image_io import write_image
 

@@ -192,3 +192,15 @@ def parse_root(text: str | None) -> np.ndarray | None:
 def frame_options(args) -> dict:
     """``make_frame`` keywords (up, root, root_index) from :func:`add_frame_arguments`' arguments."""
     return dict(up=parse_up(args.up), root=parse_root(args.root), root_index=args.root_index)
+
+
+def add_isolate_arguments(p, with_keep_scene: bool = True):
+    """--keep-scene, --crop: plant isolation (table, pot, soil, background, floaters)."""
+    g = p.add_argument_group("isolation (what a real capture keeps around the plant)")
+    if with_keep_scene:
+        g.add_argument("--keep-scene", action="store_true",
+                       help="skip plant isolation (the input is already a trimmed plant); --crop still applies")
+    g.add_argument("--crop", metavar="REGION", default=None,
+                   help="keep only a region of the input frame: box:X0,Y0,Z0,X1,Y1,Z1 or sphere:CX,CY,CZ,R "
+                        "(write --crop=box:-1,... when it starts with a minus)")
+    return g

@@ -5,7 +5,9 @@ import json
 
 NAME = "convert"
 HELP = "convert a 3DGS plant capture (.ply / USD splats) into a LeafFit USD asset"
-DESCRIPTION = """Run the whole LeafFit pipeline: load -> frame (up axis, root) -> segment leaves
+DESCRIPTION = """Run the whole LeafFit pipeline: load -> isolate the plant (table, pot, soil,
+background and floaters removed; the table normal and the stem base at the soil set the frame)
+-> frame (up axis, root) -> segment leaves
 -> fit the template leaf to every leaf (MLS) -> template mesh + textures + stem -> USD stage.
 
 Outputs .usda / .usdc (textures in textures/ and the baked-leaves payload beside the stage) or
@@ -21,7 +23,8 @@ ORDER = 10
 
 
 def add_arguments(p) -> None:
-    from leaffit_usd.commands._args import add_frame_arguments, add_segment_arguments, default, pos_float, pos_int
+    from leaffit_usd.commands._args import (add_frame_arguments, add_isolate_arguments,
+                                            add_segment_arguments, default, pos_float, pos_int)
     from leaffit_usd.fit.params import FitParams
     from leaffit_usd.mesh.template import MeshParams
     from leaffit_usd.segment.edits import add_edits_argument
@@ -39,6 +42,7 @@ def add_arguments(p) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output stage (.usda, .usdc, .usd or .usdz)")
     p.add_argument("--report", metavar="R.json", help="write timings, counts, sizes and fit errors as JSON")
     add_frame_arguments(p)
+    add_isolate_arguments(p)
     g = add_segment_arguments(p)
     g.add_argument("--labels", metavar="L.npz", help="reuse a segmentation: .npz with 'labels' (int per input Gaussian, file order, 0 = stem)")
     add_edits_argument(g)
@@ -102,7 +106,8 @@ def options_from_args(args):
         mesh=MeshParams(**given(vertex_budget=args.vertex_budget, texture_size=args.bake_size)),
         write=WriteOptions(texture_format=args.texture_format, texture_max_size=args.texture_size,
                            baked={"auto": "auto", "yes": True, "no": False}[args.baked]),
-        up_axis=args.up_axis.upper(), meters_per_unit=args.meters_per_unit, height_m=args.height)
+        up_axis=args.up_axis.upper(), meters_per_unit=args.meters_per_unit, height_m=args.height,
+        keep_scene=bool(args.keep_scene), crop=args.crop)
 
 
 def run(args) -> int:

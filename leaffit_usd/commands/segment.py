@@ -17,8 +17,14 @@ Automatic leaf instance segmentation (LeafFit, Sec. "Leaf Instance Segmentation"
 geodesic distance from the root, leaf apexes as its local maxima, a rootward tree, apexes grouped
 into leaves by the triangle-inequality test, and each leaf cut at its petiole.
 
+The plant is isolated first, as 'convert' does (table, pot, soil, background, floaters; see
+'leaffit-usd isolate'); --keep-scene skips that.
+
 Output (.npz, one row per Gaussian of the INPUT FILE, in file order):
-  labels        int32, 0 = stem / unassigned, 1..L = leaves (the file 'convert --labels' takes)
+  labels        int32, 0 = stem / unassigned, 1..L = leaves, -1 = removed by isolation (the file
+                'convert --labels' takes)
+  isolation     uint8, the isolation class (0 plant, 1 ground, 2 pot, 3 soil, 4 background,
+                5 floater, 255 dropped at load)
   root_index    int, the root Gaussian (file order)
   apex_indices  int64, every detected apex (file order); apex_labels: its leaf (0 = none)
   leaf_tip, leaf_base   int64 per leaf (file order)
@@ -43,7 +49,8 @@ log = logging.getLogger("leaffit_usd")
 
 
 def add_arguments(p) -> None:
-    from leaffit_usd.commands._args import add_frame_arguments, add_segment_arguments, default, pos_int
+    from leaffit_usd.commands._args import (add_frame_arguments, add_isolate_arguments,
+                                            add_segment_arguments, default, pos_int)
     from leaffit_usd.segment.auto import SegmentParams
     from leaffit_usd.segment.edits import add_edits_argument
 
@@ -56,6 +63,7 @@ def add_arguments(p) -> None:
     p.add_argument("--report", metavar="R.json", help="write timings and counts as JSON")
     p.add_argument("--prim", default=None, metavar="PATH", help="USD only: the splat prim when there are several")
     add_frame_arguments(p)
+    add_isolate_arguments(p)
     g = add_segment_arguments(p, "parameters (paper defaults, working units: plant height 1)")
     g.add_argument("--seed", type=pos_int,
                    help=f"seed of the random geodesic subset ({default(SegmentParams, 'seed')})")
@@ -70,18 +78,22 @@ def params_from_args(args):
 def run(args) -> int:
     from leaffit_usd.io_util import atomic_path
     from leaffit_usd.segment.auto import segment_plant, working_normals
+    from leaffit_usd.pipeline import frame_from_isolation, isolate_stage
     from leaffit_usd.segment.result import DOUBTFUL_CONFIDENCE
     from leaffit_usd.splats import load_cloud
-    from leaffit_usd.splats.frame import make_frame
 
     if not str(args.output).lower().endswith(".npz"):
         raise ParameterError("-o/--output", "a .npz file", args.output)
     params = params_from_args(args)
     t0 = time.perf_counter()
-    cloud = load_cloud(args.input, prim=args.prim)
+    cloud_in = load_cloud(args.input, prim=args.prim)
     t_read = time.perf_counter() - t0
     t1 = time.perf_counter()
-    choice = make_frame(cloud, **_args.frame_options(args))
+    fo = _args.frame_options(args)
+    cloud, iso = isolate_stage(cloud_in, getattr(args, "keep_scene", False), getattr(args, "crop", None),
+                               fo["up"])
+    t_iso = time.perf_counter() - t1
+    choice = frame_from_isolation(cloud, iso, cloud=cloud_in, **fo)
     frame, root = choice.frame, choice.root_index
     pts = frame.to_working(cloud.means)
     normals = working_normals(cloud, frame.rotation)
@@ -99,8 +111,12 @@ def run(args) -> int:
         return fi[np.asarray(idx, np.int64)].astype(np.int64)
 
     dist = cloud.to_file_order(seg.dist_root.astype(np.float32), fill=np.nan).astype(np.float32)
+    file_labels = cloud.to_file_order(labels, fill=0).astype(np.int32)
+    iso_classes = cloud_in.to_file_order(np.asarray(iso.classes, np.uint8), fill=255).astype(np.uint8)
+    file_labels[(iso_classes != 0) & (iso_classes != 255)] = -1
     out = {
-        "labels": cloud.to_file_order(labels, fill=0).astype(np.int32),
+        "labels": file_labels,
+        "isolation": iso_classes,
         "root_index": np.int64(fi[seg.root_index]),
         "apex_indices": fo(seg.apex_indices),
         "apex_labels": seg.apex_labels.astype(np.int32),
@@ -136,7 +152,8 @@ def run(args) -> int:
                "leaves": seg.n_leaves, "apexes": int(len(seg.apex_indices)),
                "leaf_sizes": np.bincount(seg.labels, minlength=seg.n_leaves + 1)[1:].tolist(),
                "confidence": [round(float(c), 4) for c in seg.confidence],
-               "timings": {"read": t_read, "segment_total": t_seg, **timings}, "params": seg.params,
+               "timings": {"read": t_read, "isolate": t_iso, "segment_total": t_seg, **timings},
+               "params": seg.params, "isolation": iso.to_dict(),
                "frame": frame.to_dict(), "root_index": int(fi[seg.root_index])}
         atomic_write_bytes(args.report, json.dumps(rep, indent=1).encode())
     return 0

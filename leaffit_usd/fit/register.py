@@ -90,6 +90,8 @@ class _Leaf:
     degenerate: str = ""           # reason, "" if fine
     apex: np.ndarray = field(default_factory=lambda: np.zeros(3))   # (3,) apex Gaussian, local frame
     scale: float = 1.0
+    all_gaussians: np.ndarray | None = None  # (A,) every Gaussian of the leaf (segmentation)
+    sampled: np.ndarray | None = None        # (S,) those that entered denoising (<= leaf_gaussians)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -118,7 +120,8 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
     covs = cloud_working.covariances().astype(np.float64)
     opac = cloud_working.opacities.astype(np.float64)
 
-    leaves = [_prepare_leaf(l, means, seg, params.denoise) for l in range(1, n_leaves + 1)]
+    leaves = [_prepare_leaf(l, means, seg, params.denoise, params.leaf_gaussians, params.seed)
+              for l in range(1, n_leaves + 1)]
     for lf in leaves:
         if not lf.degenerate and len(lf.local) < params.K:
             lf.degenerate = f"{len(lf.local)} Gaussians after denoising, fewer than K={params.K}"
@@ -163,7 +166,7 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
     return LeafFits(
         template_label=int(tmpl),
         template_points=P_all.astype(np.float32),
-        template_gaussians=T.gaussians.astype(np.int64),
+        template_gaussians=_all_kept(T, means).astype(np.int64),
         template_controls=p.astype(np.float32),
         leaf_labels=np.arange(1, L + 1, dtype=np.int32),
         targets=targets.astype(np.float32),
@@ -249,13 +252,38 @@ def _start_index(points: np.ndarray) -> int:
     return int(np.argmin((np.asarray(points) ** 2).sum(1))) if len(points) else 0
 
 
-def _prepare_leaf(label: int, means: np.ndarray, seg: Segmentation, dn: DenoiseParams) -> _Leaf:
-    idx = seg.leaf_indices(label)
-    if len(idx) == 0:
-        return _Leaf(label, idx.astype(np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.eye(4), 0.0,
+def _leaf_subset(idx: np.ndarray, cap: int, label: int, seed: int) -> np.ndarray:
+    """At most ``cap`` of the indices ``idx`` (sorted), a deterministic random choice per leaf."""
+    if cap <= 0 or len(idx) <= cap:
+        return idx
+    rng = np.random.default_rng([int(seed), int(label), 0x5EED])
+    return idx[np.sort(rng.choice(len(idx), cap, replace=False))]
+
+
+def _all_kept(lf: _Leaf, means: np.ndarray) -> np.ndarray:
+    """Every Gaussian of the leaf that the denoiser would keep: the kept subset, plus the
+    Gaussians left out of the subset whose nearest subset Gaussian was kept (sorted)."""
+    if lf.all_gaussians is None or len(lf.all_gaussians) == len(lf.sampled):
+        return lf.gaussians
+    from scipy.spatial import cKDTree
+
+    rest = np.setdiff1d(lf.all_gaussians, lf.sampled, assume_unique=True)
+    if not len(rest) or not len(lf.sampled):
+        return lf.gaussians
+    keep = np.isin(lf.sampled, lf.gaussians, assume_unique=True)
+    _, near = cKDTree(means[lf.sampled]).query(means[rest], k=1, workers=-1)
+    return np.sort(np.concatenate([lf.gaussians, rest[keep[near]]]))
+
+
+def _prepare_leaf(label: int, means: np.ndarray, seg: Segmentation, dn: DenoiseParams,
+                  cap: int = 0, seed: int = 0) -> _Leaf:
+    idx_all = seg.leaf_indices(label)
+    if len(idx_all) == 0:
+        return _Leaf(label, idx_all.astype(np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.eye(4), 0.0,
                      "no Gaussians in the segmentation")
+    idx = _leaf_subset(idx_all, cap, label, seed)
     pts = means[idx]
-    base, apex = _base_apex(label, idx, means, seg)
+    base, apex = _base_apex(label, idx_all, means, seg)
     res = denoise_leaf(pts, dn)
     kept = idx[res.keep]
     dpts = res.points
@@ -282,7 +310,8 @@ def _prepare_leaf(label: int, means: np.ndarray, seg: Segmentation, dn: DenoiseP
         reason = "non-finite positions"
         local = normals = np.zeros((0, 3))
     apex_local = (apex - frame[:3, 3]) @ frame[:3, :3]
-    return _Leaf(label, kept.astype(np.int64), local, normals, frame, size, reason, apex=apex_local)
+    return _Leaf(label, kept.astype(np.int64), local, normals, frame, size, reason, apex=apex_local,
+                 all_gaussians=idx_all, sampled=idx)
 
 
 def _base_apex(label, idx, means, seg):

@@ -1,0 +1,278 @@
+"""Isolation benchmark: does a capture that keeps its pot, soil, table and clutter give the same
+result as the trimmed plant?
+
+For every plant, the capture-like file (``samples.capture_suite()``: pot, soil, table, clutter,
+back wall; and, when ``../shared/plants`` exists, the external generator's ``--scene`` plants)
+and the same plant without its surroundings go through what ``convert`` does with no options:
+isolation -> frame (up, root) -> automatic segmentation. Printed per plant:
+
+* isolation precision / recall per class against the ground truth (samples: plant, ground, pot,
+  soil, background, floater; external: plant / scene / floater, its GT has no finer classes),
+  and the share of the trimmed plant's own Gaussians that isolation removed;
+* up-axis error (degrees) and root error (fraction of the plant height) on the capture;
+* segmentation scores (Acc / mIoU / PQ, ``../shared/plants/eval_seg.py`` when present, else
+  ``leaffit_usd.metrics``) on the capture and on the trimmed plant, and their mIoU difference;
+* with ``--convert``: the whole ``convert`` of the capture, baked (leaves + stem, input frame),
+  and how much of the asset lies outside the plant: the largest distance of an asset vertex from
+  the nearest GT plant Gaussian, and the share of vertices farther than 5 % of the plant height.
+
+    .venv/bin/python benchmarks/isolation.py [--set samples|external|all] [--convert]
+        [--gaussians 60000] [--only NAME ...] [--ext-dir DIR]
+
+Writes benchmarks/results/isolation.json.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import logging
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+SHARED = ROOT.parent / "shared" / "plants"
+
+from leaffit_usd.isolate import CLASS_NAMES  # noqa: E402
+from leaffit_usd.pipeline import auto_segment, frame_from_isolation, isolate_stage  # noqa: E402
+from leaffit_usd.segment.auto import SegmentParams  # noqa: E402
+from leaffit_usd.splats import load_cloud  # noqa: E402
+from leaffit_usd.splats.transform import transform_cloud  # noqa: E402
+
+
+def _eval_seg():
+    path = SHARED / "eval_seg.py"
+    if not path.is_file():
+        return None
+    spec = importlib.util.spec_from_file_location("eval_seg", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+EVAL = _eval_seg()
+
+
+def seg_scores(gt_labels, pred_labels) -> dict:
+    if EVAL is not None:
+        s = EVAL.score(np.asarray(gt_labels), np.asarray(pred_labels))
+        return {k: round(100 * float(s[k]), 2) for k in ("Acc", "mIoU", "PQ")}
+    from leaffit_usd.metrics import segmentation_scores
+
+    s = segmentation_scores(np.where(gt_labels < 0, -1, gt_labels), np.maximum(pred_labels, 0))
+    return {"Acc": round(100 * s["acc"], 2), "mIoU": round(100 * s["miou"], 2), "PQ": round(100 * s["pq"], 2)}
+
+
+def angle_deg(a, b) -> float:
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
+
+
+def run_pipeline(path) -> dict:
+    """isolate -> frame -> segment with the defaults; labels in file order (-1 = removed)."""
+    cloud_in = load_cloud(path)
+    t0 = time.perf_counter()
+    plant, iso = isolate_stage(cloud_in)
+    t_iso = time.perf_counter() - t0
+    choice = frame_from_isolation(plant, iso, cloud=cloud_in)
+    cw = transform_cloud(plant, choice.frame.input_to_working)
+    t1 = time.perf_counter()
+    seg = auto_segment(cw, choice.root_index, SegmentParams())
+    t_seg = time.perf_counter() - t1
+    labels = np.full(cloud_in.file_count, -1, np.int64)
+    labels[plant.file_index] = seg.labels
+    classes = cloud_in.to_file_order(np.asarray(iso.classes, np.uint8), fill=255)
+    up = choice.frame.up
+    root = plant.means[choice.root_index].astype(np.float64)
+    return {"labels": labels, "classes": classes, "up": np.asarray(up, float), "root": root,
+            "up_source": iso.up_source, "t_isolate": t_iso, "t_segment": t_seg,
+            "leaves": int(seg.n_leaves), "iso": iso}
+
+
+def class_scores(gt_class, pred_class, names) -> dict:
+    out = {}
+    for c, name in names:
+        g, p = np.isin(gt_class, c), np.isin(pred_class, c)
+        tp = int((g & p).sum())
+        out[name] = {"gt": int(g.sum()), "pred": int(p.sum()),
+                     "precision": round(tp / p.sum(), 4) if p.sum() else None,
+                     "recall": round(tp / g.sum(), 4) if g.sum() else None}
+    return out
+
+
+def asset_outside(scene_path, gt_labels, gt_plant_pts, height, workdir) -> dict:
+    """convert with no options, bake (input frame), distance of asset vertices from the plant."""
+    from scipy.spatial import cKDTree
+
+    from leaffit_usd.commands.bake import bake
+    from leaffit_usd.pipeline import convert
+
+    out = Path(workdir) / "asset.usda"
+    t0 = time.perf_counter()
+    rep = convert(scene_path, out)
+    t_conv = time.perf_counter() - t0
+    npz = Path(workdir) / "leaves.npz"
+    bake(out, npz)
+    z = np.load(npz)
+    verts = [z["vertices"]]
+    if "stem_vertices" in z.files and len(z["stem_vertices"]):
+        verts.append(z["stem_vertices"])
+    v = np.concatenate(verts).astype(np.float64)
+    d, _ = cKDTree(gt_plant_pts).query(v, k=1)
+    d = d / height
+    return {"convert_s": round(t_conv, 1), "leaves": rep["counts"]["leaves"],
+            "max_dist_over_height": round(float(d.max()), 4),
+            "p99_dist_over_height": round(float(np.quantile(d, 0.99)), 4),
+            "share_beyond_5pct": round(float((d > 0.05).mean()), 5),
+            "removed": rep["isolation"]["removed"]}
+
+
+def plants_samples(gaussians: int, cache: Path, only):
+    from samples.generate import capture_suite, make_plant, save_plant
+    import dataclasses
+
+    out = []
+    for name, spec, seed in capture_suite(gaussians):
+        if only and name not in only:
+            continue
+        trimmed = dataclasses.replace(spec, scene=False)
+        for nm, sp in ((name, spec), (name + "_trimmed", trimmed)):
+            if not (cache / f"{nm}.ply").is_file():
+                cloud, gt = make_plant(sp, seed)
+                save_plant(cloud, gt, cache, nm)
+        from samples.generate import load_ground_truth
+
+        gt = load_ground_truth(cache / f"{name}.gt.npz")
+        gtt = load_ground_truth(cache / f"{name}_trimmed.gt.npz")
+        out.append({"set": "samples", "name": name, "scene": cache / f"{name}.ply",
+                    "trimmed": cache / f"{name}_trimmed.ply", "gt_labels": gt.labels,
+                    "gt_class": gt.scene_class, "gt_labels_trimmed": gtt.labels, "up": gt.up,
+                    "root": gt.root, "height": gt.height})
+    return out
+
+
+def plants_external(ext_dir: Path, only):
+    if not SHARED.is_dir():
+        print(f"skipping the external plants: {SHARED} is absent", file=sys.stderr)
+        return []
+    scene_dir, plain_dir = ext_dir / "scene", ext_dir / "plain"
+    py = _external_python()
+    for d, extra in ((scene_dir, ["--scene"]), (plain_dir, [])):
+        if not (d / "index.json").is_file():
+            cmd = [py, str(SHARED / "make_plants.py"), "--out", str(d), "--seed", "1", "--preset",
+                   "paper8", "--quiet", *extra]
+            print("generating:", " ".join(cmd), file=sys.stderr)
+            subprocess.run(cmd, check=True)
+    out = []
+    for entry in json.loads((scene_dir / "index.json").read_text())["plants"]:
+        name = entry["name"]
+        if only and name not in only:
+            continue
+        g = np.load(scene_dir / name / "gt.npz")
+        gt = np.asarray(g["labels"])
+        cls = np.where(gt >= 0, 0, np.where(gt == -1, 5, 4))  # plant / floater / scene
+        out.append({"set": "external", "name": name, "scene": scene_dir / name / "point_cloud.ply",
+                    "trimmed": plain_dir / name / "point_cloud.ply", "gt_labels": gt, "gt_class": cls,
+                    "gt_labels_trimmed": np.asarray(np.load(plain_dir / name / "gt.npz")["labels"]),
+                    "up": np.asarray(g["up"]), "root": np.asarray(g["root"]),
+                    "height": float(g["plant_height"])})
+    return out
+
+
+def _external_python() -> str:
+    """A Python with the external generator's needs (numpy, scipy, pillow, plyfile)."""
+    for cand in (Path.home() / ".cache/leaffit-plants/heliosvenv/bin/python", Path(sys.executable)):
+        if cand.is_file() and subprocess.run([str(cand), "-c", "import PIL, plyfile, scipy"],
+                                             capture_output=True).returncode == 0:
+            return str(cand)
+    raise SystemExit("the external generator needs pillow and plyfile (pip install pillow plyfile)")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--set", choices=("samples", "external", "all"), default="all")
+    ap.add_argument("--gaussians", type=int, default=60_000, help="plant Gaussians of the samples (60000)")
+    ap.add_argument("--only", nargs="*", default=None)
+    ap.add_argument("--convert", action="store_true", help="also run the whole convert on each capture")
+    ap.add_argument("--cache", default=str(Path(tempfile.gettempdir()) / "leaffit-isolation-bench"))
+    ap.add_argument("--ext-dir", default=None, help="external plants (default CACHE/external)")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks/results/isolation.json"))
+    a = ap.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING)
+    cache = Path(a.cache)
+    cache.mkdir(parents=True, exist_ok=True)
+    plants = []
+    if a.set in ("samples", "all"):
+        plants += plants_samples(a.gaussians, cache / "samples", a.only)
+    if a.set in ("external", "all"):
+        plants += plants_external(Path(a.ext_dir) if a.ext_dir else cache / "external", a.only)
+    rows = []
+    hdr = (f"{'plant':28s} {'up°':>5s} {'root':>6s} {'mIoU cap':>8s} {'mIoU trim':>9s} {'Δ':>6s} "
+           f"{'plant P/R':>11s} {'trim lost':>9s} {'iso s':>6s}")
+    print(hdr)
+    for pl in plants:
+        cap = run_pipeline(pl["scene"])
+        trim = run_pipeline(pl["trimmed"])
+        s_cap = seg_scores(pl["gt_labels"], cap["labels"])
+        s_trim = seg_scores(pl["gt_labels_trimmed"], trim["labels"])
+        if pl["set"] == "samples":
+            names = [(i, n) for i, n in enumerate(CLASS_NAMES)]
+        else:
+            names = [(0, "plant"), ([1, 2, 3, 4], "scene"), (5, "floater")]
+        pred = cap["classes"].astype(np.int64)
+        cs = class_scores(pl["gt_class"], pred, names)
+        gtt = pl["gt_labels_trimmed"]
+        lost = float(((trim["classes"] != 0) & (gtt >= 0)).sum() / max((gtt >= 0).sum(), 1))
+        up_err = angle_deg(cap["up"], pl["up"])
+        root_err = float(np.linalg.norm(cap["root"] - pl["root"]) / pl["height"])
+        row = {"set": pl["set"], "name": pl["name"], "up_error_deg": round(up_err, 2),
+               "up_source": cap["up_source"], "root_error_over_height": round(root_err, 4),
+               "seg_capture": s_cap, "seg_trimmed": s_trim,
+               "miou_delta": round(s_cap["mIoU"] - s_trim["mIoU"], 2),
+               "leaves_capture": cap["leaves"], "leaves_trimmed": trim["leaves"],
+               "classes": cs, "trimmed_plant_lost": round(lost, 5),
+               "trimmed_removed": trim["iso"].removed(),
+               "isolate_s": round(cap["t_isolate"], 2), "segment_s": round(cap["t_segment"], 2),
+               "gaussians": int(len(pl["gt_labels"]))}
+        if a.convert:
+            gl = np.asarray(pl["gt_labels"])
+            pts = load_cloud(pl["scene"]).means
+            plant_pts = pts[np.asarray(gl)[:len(pts)] >= 0] if len(pts) == len(gl) else pts
+            with tempfile.TemporaryDirectory() as td:
+                row["asset"] = asset_outside(pl["scene"], gl, plant_pts, pl["height"], td)
+        rows.append(row)
+        pc = cs["plant"]
+        print(f"{pl['name']:28s} {up_err:5.1f} {root_err:6.3f} {s_cap['mIoU']:8.2f} {s_trim['mIoU']:9.2f} "
+              f"{row['miou_delta']:+6.2f} {pc['precision']:.3f}/{pc['recall']:.3f} {lost:9.4f} "
+              f"{cap['t_isolate']:6.1f}" + (f"  asset max {row['asset']['max_dist_over_height']:.3f} H, "
+                                           f">5%H {row['asset']['share_beyond_5pct']:.4f}"
+                                           if "asset" in row else ""), flush=True)
+    summary = {}
+    for st in sorted({r["set"] for r in rows}):
+        rs = [r for r in rows if r["set"] == st]
+        summary[st] = {
+            "plants": len(rs),
+            "mean_miou_capture": round(float(np.mean([r["seg_capture"]["mIoU"] for r in rs])), 2),
+            "mean_miou_trimmed": round(float(np.mean([r["seg_trimmed"]["mIoU"] for r in rs])), 2),
+            "max_abs_miou_delta": round(float(np.max([abs(r["miou_delta"]) for r in rs])), 2),
+            "max_up_error_deg": round(float(np.max([r["up_error_deg"] for r in rs])), 2),
+            "max_trimmed_plant_lost": round(float(np.max([r["trimmed_plant_lost"] for r in rs])), 5),
+        }
+        if all("asset" in r for r in rs):
+            summary[st]["max_asset_dist_over_height"] = max(r["asset"]["max_dist_over_height"] for r in rs)
+        print(st, json.dumps(summary[st]))
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(a.out).write_text(json.dumps({"summary": summary, "plants": rows,
+                                       "evaluator": "eval_seg.py" if EVAL else "leaffit_usd.metrics"},
+                                      indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

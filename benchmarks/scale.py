@@ -1,0 +1,156 @@
+"""Scale benchmark: one plant at 100k, 1M and 5M Gaussians through ``convert`` with no options.
+
+The plant is the external generator's (``../shared/plants/make_plants.py --preset paper8
+--count 1 --gaussians N``: the same capsicum, denser), or with ``--samples`` our own
+(``samples.generate``, rubber_tree). Every conversion runs in its own process (so its peak
+memory is its own): wall time per stage (the convert report's timings), peak resident memory
+(``ru_maxrss`` of the child), and the leaf shape error of the baked leaves against the GT meshes
+(Corr-l2 / CD / HD x10 and matched leaves, ``../shared/plants/eval_deform.py``). The done-when
+of issue 13: 1M within 2.5x the 100k wall time and under 2 GB; 5M under 8 GB; shape error no
+worse than at 100k.
+
+    .venv/bin/python benchmarks/scale.py [--sizes 100000 1000000 5000000] [--samples]
+
+Writes benchmarks/results/scale.json. Skips with a message when ``../shared/plants`` is absent
+(unless ``--samples``).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+SHARED = ROOT.parent / "shared" / "plants"
+
+_CHILD = r"""
+import json, resource, sys, time, logging
+logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
+from leaffit_usd.pipeline import convert
+from leaffit_usd.commands.bake import bake
+t0 = time.perf_counter()
+rep = convert(sys.argv[1], sys.argv[2])
+wall = time.perf_counter() - t0
+bake(sys.argv[2], sys.argv[3])
+peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+rep.get("isolation", {}).pop("classes", None)
+json.dump({"wall_s": wall, "peak_bytes": peak, "cpu_s": time.process_time(), "report": rep},
+          open(sys.argv[4], "w"))
+"""
+
+
+def _load(name):
+    path = SHARED / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _external_python() -> str:
+    for cand in (Path.home() / ".cache/leaffit-plants/heliosvenv/bin/python", Path(sys.executable)):
+        if cand.is_file() and subprocess.run([str(cand), "-c", "import PIL, plyfile, scipy"],
+                                             capture_output=True).returncode == 0:
+            return str(cand)
+    raise SystemExit("the external generator needs pillow and plyfile")
+
+
+def make_external(n: int, cache: Path) -> tuple[Path, Path]:
+    d = cache / f"ext_{n}"
+    if not (d / "index.json").is_file():
+        subprocess.run([_external_python(), str(SHARED / "make_plants.py"), "--out", str(d), "--seed",
+                        "1", "--preset", "paper8", "--count", "1", "--gaussians", str(n), "--quiet"],
+                       check=True)
+    name = json.loads((d / "index.json").read_text())["plants"][0]["name"]
+    return d / name / "point_cloud.ply", d / name / "gt.npz"
+
+
+def make_samples(n: int, cache: Path) -> tuple[Path, Path]:
+    from samples.generate import make_plant, preset, save_plant
+
+    d = cache / "samples"
+    name = f"rubber_tree_{n}"
+    if not (d / f"{name}.ply").is_file():
+        cloud, gt = make_plant(preset("rubber_tree", gaussians=n), 1)
+        save_plant(cloud, gt, d, name)
+    return d / f"{name}.ply", d / f"{name}.gt.npz"
+
+
+def shape_error(gt_path: Path, leaves_npz: Path) -> dict:
+    if not SHARED.is_dir():
+        return {}
+    ev = _load("eval_deform")
+    g = np.load(gt_path)
+    if "plant_height" not in g.files:  # samples GT: adapt to the evaluator's keys
+        tmp = Path(tempfile.mkdtemp()) / "gt.npz"
+        np.savez(tmp, leaf_vertices=g["leaf_vertices"], leaf_faces=g["leaf_faces"],
+                 leaf_vertex_ids=g["leaf_vertex_ids"], plant_height=np.float64(g["height"]))
+        gt_path = tmp
+    r = ev.evaluate_files(str(gt_path), str(leaves_npz))
+    keep = {k: r[k] for k in r if isinstance(r[k], (int, float)) and not isinstance(r[k], bool)}
+    return keep
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sizes", type=int, nargs="*", default=[100_000, 1_000_000, 5_000_000])
+    ap.add_argument("--samples", action="store_true", help="our generator instead of the external one")
+    ap.add_argument("--cache", default=str(Path(tempfile.gettempdir()) / "leaffit-scale-bench"))
+    ap.add_argument("--out", default=str(ROOT / "benchmarks/results/scale.json"))
+    a = ap.parse_args(argv)
+    if not a.samples and not SHARED.is_dir():
+        print(f"skipping: {SHARED} is absent (use --samples for our own plant)", file=sys.stderr)
+        return 0
+    cache = Path(a.cache)
+    cache.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for n in a.sizes:
+        t0 = time.perf_counter()
+        ply, gt = (make_samples if a.samples else make_external)(n, cache)
+        t_gen = time.perf_counter() - t0
+        with tempfile.TemporaryDirectory() as td:
+            out, leaves, res = Path(td) / "plant.usda", Path(td) / "leaves.npz", Path(td) / "r.json"
+            env = {**os.environ, "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "2")}
+            proc = subprocess.run([sys.executable, "-c", _CHILD, str(ply), str(out), str(leaves), str(res)],
+                                  env=env, capture_output=True, text=True)
+            if proc.returncode != 0:
+                print(proc.stderr[-3000:], file=sys.stderr)
+                rows.append({"gaussians": n, "error": proc.stderr.strip().splitlines()[-1:]})
+                continue
+            r = json.loads(res.read_text())
+            err = shape_error(gt, leaves)
+        rep = r["report"]
+        row = {"gaussians": n, "gaussians_loaded": rep["counts"]["gaussians_loaded"],
+               "wall_s": round(r["wall_s"], 1), "cpu_s": round(r["cpu_s"], 1),
+               "peak_gb": round(r["peak_bytes"] / 1e9, 3), "leaves": rep["counts"]["leaves"],
+               "timings": rep["timings"], "shape": err, "generate_s": round(t_gen, 1),
+               "isolation_removed": rep["isolation"]["removed"]}
+        rows.append(row)
+        print(f"{n:>9,d} Gaussians: wall {row['wall_s']:7.1f} s, peak {row['peak_gb']:.2f} GB, "
+              f"{row['leaves']} leaves, stages " + ", ".join(f"{k} {v:.1f}" for k, v in rep["timings"].items())
+              + ("  Corr %.4f CD %.5f HD %.4f matched %s" % (err.get("corr_l2", np.nan), err.get("chamfer", np.nan),
+                                                            err.get("hausdorff", np.nan), err.get("n_matched"))
+                 if err else ""), flush=True)
+    base = next((r for r in rows if r.get("gaussians") == min(a.sizes) and "wall_s" in r), None)
+    if base:
+        for r in rows:
+            if "wall_s" in r:
+                r["wall_vs_smallest"] = round(r["wall_s"] / base["wall_s"], 2)
+    Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(a.out).write_text(json.dumps({"plant": "samples rubber_tree" if a.samples else "make_plants paper8 #0",
+                                       "rows": rows}, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,140 @@
+"""Plant isolation: capture-like samples (pot, soil, table, clutter, wall) lose their scene, a
+trimmed plant keeps itself, crop / keep-scene / the command behave, file order survives."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from leaffit_usd.errors import ParameterError
+from leaffit_usd.isolate import (BACKGROUND, CLASS_NAMES, FLOATER, GROUND, PLANT, POT, SOIL, Crop,
+                                 IsolateParams, decode_classes, encode_classes, isolate_plant)
+from samples import PLANTS_DIR, ensure_plants
+from samples.generate import make_plant, preset
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _plants():
+    ensure_plants()  # the sample plants are generated at set-up, not kept in git
+
+
+@pytest.fixture(scope="module")
+def capture():
+    """A small capture-like plant: 12k plant Gaussians and about as many of scene."""
+    return make_plant(preset("green_pepper", gaussians=12_000, scene=True), 5)
+
+
+@pytest.fixture(scope="module")
+def capture_iso(capture):
+    cloud, _ = capture
+    return isolate_plant(cloud)
+
+
+def _pr(gt, pred, c):
+    g, p = gt == c, pred == c
+    return (g & p).sum() / max(p.sum(), 1), (g & p).sum() / max(g.sum(), 1)
+
+
+def test_capture_classes_match_the_ground_truth(capture, capture_iso):
+    cloud, gt = capture
+    cls = capture_iso.classes
+    assert cls.shape == (len(cloud),) and cls.dtype == np.uint8
+    prec, rec = _pr(gt.scene_class, cls, PLANT)
+    assert prec > 0.97 and rec > 0.97, (prec, rec)
+    for c, (p_min, r_min) in {GROUND: (0.85, 0.95), POT: (0.9, 0.8), SOIL: (0.8, 0.8)}.items():
+        prec, rec = _pr(gt.scene_class, cls, c)
+        assert prec >= p_min and rec >= r_min, (CLASS_NAMES[c], prec, rec)
+    # background and floaters are removed (whatever class they get)
+    scene = np.isin(gt.scene_class, [BACKGROUND, FLOATER])
+    assert (cls[scene] != PLANT).mean() > 0.9
+
+
+def test_capture_up_and_root_from_the_scene(capture, capture_iso):
+    _, gt = capture
+    iso = capture_iso
+    assert iso.up_source == "table"
+    assert np.degrees(np.arccos(np.clip(iso.up @ gt.up, -1, 1))) < 2.0
+    assert iso.pot is not None and iso.root is not None
+    assert np.linalg.norm(iso.root - gt.root) < 0.05 * gt.height
+
+
+def test_trimmed_plant_loses_almost_nothing():
+    from leaffit_usd.splats import read_ply
+    from samples.generate import load_ground_truth
+
+    cloud = read_ply(PLANTS_DIR / "rubber_tree.ply")
+    gt = load_ground_truth(PLANTS_DIR / "rubber_tree.gt.npz")
+    iso = isolate_plant(cloud)
+    plant = gt.labels >= 0
+    lost = (iso.classes[plant] != PLANT).mean()
+    assert lost < 0.003, lost
+    assert iso.up is None and iso.pot is None  # no table, no pot in a trimmed plant
+
+
+def test_isolation_is_deterministic(capture, capture_iso):
+    again = isolate_plant(capture[0])
+    assert np.array_equal(again.classes, capture_iso.classes)
+    assert np.array_equal(again.up, capture_iso.up)
+
+
+def test_subsampled_analysis_agrees(capture, capture_iso):
+    """Above ``sample`` Gaussians every one follows its nearest sample: same answer."""
+    iso = isolate_plant(capture[0], IsolateParams(sample=12_000))
+    agree = (iso.classes == PLANT) == (capture_iso.classes == PLANT)
+    assert agree.mean() > 0.98
+
+
+def test_crop_and_parse():
+    c = Crop.parse("sphere:0,0,0,1")
+    assert c.contains(np.array([[0.5, 0, 0], [2.0, 0, 0]])).tolist() == [True, False]
+    b = Crop.parse("box:-1,-1,-1,1,1,1")
+    assert b.contains(np.array([[0.5, -0.9, 0], [0, 0, 1.5]])).tolist() == [True, False]
+    for bad in ("cube:0,0,0,1", "sphere:0,0,1", "box:1,0,0,0,1,1", "sphere:0,0,0,-1", "box:a,b"):
+        with pytest.raises(ParameterError):
+            Crop.parse(bad)
+
+
+def test_crop_removes_outside(capture):
+    cloud, gt = capture
+    centre = np.median(cloud.means[gt.labels >= 0], axis=0)
+    r = 0.2 * gt.height
+    iso = isolate_plant(cloud, crop=Crop("sphere", (*centre, r)))
+    outside = np.linalg.norm(cloud.means - centre, axis=1) > r
+    assert (iso.classes[outside] == BACKGROUND).all()
+
+
+def test_encode_classes_roundtrip():
+    c = np.random.default_rng(0).integers(0, 6, 1000).astype(np.uint8)
+    assert np.array_equal(decode_classes(encode_classes(c)), c)
+
+
+def test_isolate_command(tmp_path, capture):
+    from leaffit_usd.cli import main
+    from leaffit_usd.splats import read_ply, write_ply
+
+    cloud, gt = capture
+    src = tmp_path / "capture.ply"
+    write_ply(cloud, src)
+    out, prev, cls = tmp_path / "plant.ply", tmp_path / "iso.png", tmp_path / "c.npz"
+    assert main(["isolate", "-q", str(src), "-o", str(out), "--preview", str(prev),
+                 "--classes", str(cls)]) == 0
+    plant = read_ply(out)
+    z = np.load(cls)
+    assert z["classes"].shape == (len(cloud),)
+    assert len(plant) == int((z["classes"] == PLANT).sum()) == len(z["kept_index"])
+    # the output's Gaussians are the input's, in order: kept_index maps them back
+    assert np.allclose(plant.means, cloud.means[z["kept_index"]])
+    assert prev.stat().st_size > 1000
+    # --keep-scene keeps everything
+    assert main(["isolate", "-q", str(src), "-o", str(out), "--keep-scene"]) == 0
+    assert len(read_ply(out)) == len(cloud)
+
+
+def test_isolate_command_bad_crop_exits_2(tmp_path, capsys):
+    from leaffit_usd.cli import main
+
+    rc = main(["isolate", "-q", str(PLANTS_DIR / "pothos_sh3.ply"), "-o", str(tmp_path / "x.ply"),
+               "--crop", "cube:1,2,3"])
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--crop" in err[0]
+    assert not (tmp_path / "x.ply").exists()
