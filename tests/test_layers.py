@@ -11,6 +11,7 @@ PKG = Path(__file__).resolve().parents[1] / "leaffit_usd"
 LAYERS = [
     {"leaffit_usd", "errors", "io_util", "serialize", "image_io", "determinism"},
     {"splats", "geometry", "metrics"},
+    {"isolate"},
     {"segment"},
     {"fit"},
     {"mesh"},

@@ -148,7 +148,8 @@ def run(args) -> int:
     if args.report:
         from leaffit_usd.io_util import atomic_write_bytes
 
-        rep = {"input": str(args.input), "gaussians": len(cloud), "file_gaussians": int(cloud.file_count),
+        rep = {"input": str(args.input), "gaussians": len(cloud_in), "file_gaussians": int(cloud.file_count),
+               "gaussians_isolated": len(cloud),
                "leaves": seg.n_leaves, "apexes": int(len(seg.apex_indices)),
                "leaf_sizes": np.bincount(seg.labels, minlength=seg.n_leaves + 1)[1:].tolist(),
                "confidence": [round(float(c), 4) for c in seg.confidence],

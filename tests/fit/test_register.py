@@ -247,3 +247,23 @@ def test_convert_fit_flags_reach_fit_params(capsys):
     for bad in (dict(sigma="wide"), dict(sigma=-1.0), dict(refine=-1), dict(landmark_weight=-1.0)):
         with pytest.raises(ParameterError):
             FitParams(**bad).validate()
+
+
+def test_leaf_gaussian_cap_keeps_the_fit(plant, fits):
+    """A leaf capped to a few hundred Gaussians fits about as well as with all of them; the
+    template still bakes from (nearly) all of its leaf's Gaussians."""
+    torch.set_num_threads(1)
+    capped = fit_leaves(plant.cloud, plant.seg,
+                        FitParams(**FAST, leaf_gaussians=600, template=int(fits.template_label)))
+    sizes = np.bincount(plant.seg.labels)[1:]
+    assert sizes.min() > 600  # the cap really applies to every leaf
+    for j in range(plant.seg.n_leaves):
+        pts = plant.cloud.means[plant.seg.leaf_indices(j + 1)]
+        size = np.ptp(pts, axis=0).max()
+        assert _nn_error(plant, capped, j) < 0.03 * size
+        assert abs(_nn_error(plant, capped, j) - _nn_error(plant, fits, j)) < 0.01 * size
+    # the bake set: far more than the cap, close to the uncapped kept set
+    full, cut = set(fits.template_gaussians.tolist()), set(capped.template_gaussians.tolist())
+    assert len(cut) > 600 and len(full & cut) > 0.95 * len(full)
+    with pytest.raises(ParameterError):
+        fit_leaves(plant.cloud, plant.seg, FitParams(leaf_gaussians=-1))
