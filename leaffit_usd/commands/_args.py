@@ -202,5 +202,5 @@ def add_isolate_arguments(p, with_keep_scene: bool = True):
                        help="skip plant isolation (the input is already a trimmed plant); --crop still applies")
     g.add_argument("--crop", metavar="REGION", default=None,
                    help="keep only a region of the input frame: box:X0,Y0,Z0,X1,Y1,Z1 or sphere:CX,CY,CZ,R "
-                        "(write --crop=box:-1,... when it starts with a minus)")
+                        "(input frame)")
     return g

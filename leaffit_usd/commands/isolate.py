@@ -43,7 +43,7 @@ def add_arguments(p) -> None:
     p.add_argument("--report", metavar="R.json", help="write counts per class, the plane, pot and timings as JSON")
     p.add_argument("--prim", default=None, metavar="PATH", help="USD only: the splat prim when there are several")
     p.add_argument("--up", default="auto",
-                   help="the up direction when known (+z, -y, X,Y,Z; write --up=-y): the ground plane must "
+                   help="the up direction when known (+z, -y, X,Y,Z): the ground plane must "
                         "face it and the pot is looked for along it; default auto (the table's normal)")
     add_isolate_arguments(p)
 

@@ -386,8 +386,8 @@ def _choose_ground(s, group, planes, thr, up):
         log.debug("ground test plane %d: lo %.3g hi %.3g thr %.3g behind %.4f span %.3g foot %.3g",
                   k, lo, hi, thr, behind, span, foot)
         # the plant stands on it: touches it, rises well above it, nothing of it behind, and the
-        # plane reaches wider than the plant's footprint (a leaf does not)
-        if lo <= 6 * thr and hi > 10 * thr and behind < 0.01 and span >= 0.5 * foot:
+        # plane reaches wider than the plant's footprint (a leaf, even a big flat one, does not)
+        if lo <= 6 * thr and hi > 10 * thr and behind < 0.01 and span >= 1.2 * foot:
             if best is None or support > best[2]:
                 best = (n_, d_, support)
     return None if best is None else (best[0], best[1])
@@ -424,9 +424,17 @@ def _candidate_planes(s: np.ndarray, p_: IsolateParams, up) -> tuple[list, float
         inl = rest[np.asarray(inl, np.int64)]
         if len(inl) < 50:
             break
-        n_, d_ = _fit_plane(vp[inl])  # refine on the inliers (deterministic given them)
-        dist = vp @ n_ + d_
-        inl = np.flatnonzero(np.abs(dist) <= thr)
+        # refine to a fixed point of (inliers -> least-squares plane): open3d's parallel RANSAC
+        # may return slightly different models run to run; the fixed point does not
+        for _ in range(10):
+            n_, d_ = _fit_plane(vp[inl])
+            if n_[int(np.argmax(np.abs(n_)))] < 0:
+                n_, d_ = -n_, -d_
+            dist = vp @ n_ + d_
+            new = np.flatnonzero(np.abs(dist) <= thr)
+            if np.array_equal(new, inl):
+                break
+            inl = new
         rest = np.setdiff1d(rest, inl)
         offp = dist[np.abs(dist) > 2 * thr]
         if len(offp) < 10:
