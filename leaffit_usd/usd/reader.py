@@ -225,12 +225,14 @@ def _material_texture(material) -> str:
 
 
 def read_texture(stage, asset_path: str) -> np.ndarray | None:
-    """Decode a texture referenced by the stage (also inside a .usdz) -> (H, W, C) uint8, or None."""
+    """Decode a texture referenced by the stage (also inside a .usdz) -> (H, W, 4) uint8 RGBA
+    (straight alpha, ``image_io.read_image_u8``), or None when it cannot be resolved or read."""
     import os
     import tempfile
 
-    import OpenImageIO as oiio
     from pxr import Ar
+
+    from leaffit_usd.image_io import ImageError, read_image_u8
 
     if not asset_path:
         return None
@@ -247,8 +249,10 @@ def read_texture(stage, asset_path: str) -> np.ndarray | None:
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
-        buf = oiio.ImageBuf(tmp)
-        img = buf.get_pixels(oiio.UINT8)
-        return None if img is None or img.size == 0 else np.ascontiguousarray(img)
+        try:
+            img = read_image_u8(tmp)
+        except ImageError:
+            return None
+        return None if img.size == 0 else img
     finally:
         os.unlink(tmp)

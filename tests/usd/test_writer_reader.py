@@ -140,6 +140,23 @@ def test_png_textures_keep_alpha_and_downsample(tmp_path, asset, textures):
     assert "opacity" in (tmp_path / "p.usda").read_text()
 
 
+def test_png_textures_keep_straight_alpha(tmp_path, asset, textures):
+    """Semi-transparent texels keep their colour on disk and read back exactly (the writer used to
+    let OpenImageIO divide colour by alpha on write, clipping it at 255)."""
+    from leaffit_usd.usd.reader import open_stage, read_texture
+
+    front = np.array(textures.front[..., :3], np.uint8, copy=True)
+    alpha = np.full(front.shape[:2] + (1,), 128, np.uint8)
+    alpha[0, 0] = 0
+    rgba = np.concatenate([front, alpha], 2)
+    rgba[0, 0, :3] = (200, 100, 50)
+    W.write_stage(tmp_path / "p.usda", asset, W.LeafTextures(rgba, rgba.copy()),
+                  W.WriteOptions(texture_format="png", texture_max_size=16384),
+                  leaves=asset_leaves(asset, separate_sheets=True))
+    back = read_texture(open_stage(tmp_path / "p.usda"), "./textures/p.front.png")
+    np.testing.assert_array_equal(back, rgba)
+
+
 def test_plain_pxr_reads_every_value_without_the_plugin(tmp_path, asset, textures):
     """A reader that never imports leaffit_usd (no schema plug-in) still sees all authored values."""
     out = tmp_path / "p.usda"
