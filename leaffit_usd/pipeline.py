@@ -253,32 +253,18 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     from leaffit_usd.splats.transform import transform_cloud
     from leaffit_usd.usd.assemble import DEFAULT_SHEET_OFFSET, asset_from_results
     from leaffit_usd.runtime.evaluator import asset_leaves
-    from leaffit_usd.usd.writer import FORMATS, LeafTextures, write_stage
+    from leaffit_usd.usd.writer import LeafTextures, write_stage
 
     o = options or ConvertOptions()
     t_start = time.perf_counter()
     input_path, output_path = Path(input_path), Path(output_path)
-    if output_path.suffix.lower() not in FORMATS:
-        raise ParameterError("-o/--output", f"a path ending in {', '.join(FORMATS)}", str(output_path))
-    if str(o.up_axis).upper() not in ("Y", "Z"):
-        raise ParameterError("--up-axis", "Y or Z", o.up_axis)
-    o.write.validate()
-    if not (np.isfinite(o.meters_per_unit) and o.meters_per_unit > 0):
-        raise ParameterError("--meters-per-unit", "a positive number", o.meters_per_unit)
-    if o.height_m is not None and not (np.isfinite(o.height_m) and o.height_m > 0):
-        raise ParameterError("--height", "a positive height in metres", o.height_m)
-    if o.labels is not None and not Path(o.labels).is_file():
-        raise InputFileError(o.labels, "no such file")
-    if o.edits is not None and not Path(o.edits).is_file():
-        raise InputFileError(o.edits, "no such file")
+    _check_options(o, output_path)
 
     from leaffit_usd.fit.register import fit_leaves
     from leaffit_usd.mesh.stem import build_stem
     from leaffit_usd.mesh.template import build_template_mesh
 
     seg_p, fit_p, mesh_p, stem_p = o.segment, o.fit, o.mesh, o.stem
-    for p in (seg_p, fit_p, mesh_p, stem_p):
-        p.validate()
 
     T = _Timer(8)
     with T.stage("load", f"loading {input_path.name}"):
@@ -294,24 +280,8 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         cw = transform_cloud(cloud, frame.input_to_working)
         pts = np.asarray(cw.means, np.float64)
     with T.stage("segment", "segmenting leaves" if o.labels is None else f"reading labels {o.labels}"):
-        auto_seg = None
-        if o.labels is None:
-            auto_seg = auto_segment(cw, root_index, seg_p)
-            labels = np.asarray(auto_seg.labels, np.int32)
-        else:
-            labels = load_labels(o.labels, cloud)
-        if o.edits is not None:
-            from leaffit_usd.segment.edits import apply_edits_file
-            labels = apply_edits_file(labels, cloud, o.edits, input_path)
-        if o.labels is None and o.edits is None:
-            seg = auto_seg
-        else:
-            seg = _segmentation_from_labels(cw, labels, root_index, seg_p, auto_seg)
+        seg = _segment_stage(cw, cloud, root_index, o, input_path)
         n_leaves = seg.n_leaves
-        log.info("      %d leaves", n_leaves)
-        if n_leaves == 0:
-            raise InputFileError(input_path, "no leaves found (the segmentation is empty); "
-                                 "check --up/--root or pass --labels")
     with T.stage("fit", f"fitting the template to {n_leaves} leaves (K={fit_p.K}, {fit_p.steps} steps)"):
         fits = fit_leaves(cw, seg, fit_p)
     with T.stage("mesh", "building the template mesh and textures"):
@@ -337,6 +307,62 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
                              LeafTextures(template.front_texture, template.back_texture), o.write,
                              leaves=asset_leaves(asset, separate_sheets=True))
 
+    report = _report(input_path, output_path, sha, result, {**T.timings, "total": round(
+        time.perf_counter() - t_start, 4)}, cloud, cloud_in, iso, fits, template, asset, frame, root_index)
+    all_bytes = report["sizes"]["output_with_sidecars_bytes"]
+    log.info("wrote %s (%d file(s), %.1f KB; input %.1f KB, ratio %.1fx) in %.1f s", output_path,
+             len(result.files), all_bytes / 1024, report["sizes"]["input_bytes"] / 1024,
+             report["sizes"]["compression_ratio"], report["timings"]["total"])
+    return report
+
+
+def _check_options(o: ConvertOptions, output_path: Path) -> None:
+    """Every option checked before the long run (UserError subclasses)."""
+    from leaffit_usd.usd.writer import FORMATS
+
+    if output_path.suffix.lower() not in FORMATS:
+        raise ParameterError("-o/--output", f"a path ending in {', '.join(FORMATS)}", str(output_path))
+    if str(o.up_axis).upper() not in ("Y", "Z"):
+        raise ParameterError("--up-axis", "Y or Z", o.up_axis)
+    o.write.validate()
+    if not (np.isfinite(o.meters_per_unit) and o.meters_per_unit > 0):
+        raise ParameterError("--meters-per-unit", "a positive number", o.meters_per_unit)
+    if o.height_m is not None and not (np.isfinite(o.height_m) and o.height_m > 0):
+        raise ParameterError("--height", "a positive height in metres", o.height_m)
+    if o.labels is not None and not Path(o.labels).is_file():
+        raise InputFileError(o.labels, "no such file")
+    if o.edits is not None and not Path(o.edits).is_file():
+        raise InputFileError(o.edits, "no such file")
+    for p in (o.segment, o.fit, o.mesh, o.stem):
+        p.validate()
+
+
+def _segment_stage(cw, cloud, root_index: int, o: ConvertOptions, input_path: Path):
+    """The Segmentation of the working-frame cloud ``cw``: automatic, or --labels, then --edits.
+    Raises InputFileError when it has no leaves."""
+    auto_seg = None
+    if o.labels is None:
+        auto_seg = auto_segment(cw, root_index, o.segment)
+        labels = np.asarray(auto_seg.labels, np.int32)
+    else:
+        labels = load_labels(o.labels, cloud)
+    if o.edits is not None:
+        from leaffit_usd.segment.edits import apply_edits_file
+        labels = apply_edits_file(labels, cloud, o.edits, input_path)
+    if o.labels is None and o.edits is None:
+        seg = auto_seg
+    else:
+        seg = _segmentation_from_labels(cw, labels, root_index, o.segment, auto_seg)
+    log.info("      %d leaves", seg.n_leaves)
+    if seg.n_leaves == 0:
+        raise InputFileError(input_path, "no leaves found (the segmentation is empty); "
+                             "check --up/--root or pass --labels")
+    return seg
+
+
+def _report(input_path: Path, output_path: Path, sha: str, result, timings: dict, cloud, cloud_in,
+            iso, fits, template, asset, frame, root_index: int) -> dict:
+    """The JSON-compatible report of one conversion (see :func:`convert`)."""
     in_bytes = input_path.stat().st_size
     out_bytes = output_path.stat().st_size
     all_bytes = result.total_bytes if output_path.suffix.lower() != ".usdz" else out_bytes
@@ -345,11 +371,11 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         "tool": "leaffit-usd", "version": __version__,
         "input": str(input_path), "input_sha256": sha, "output": str(output_path),
         "outputs": {k: str(v) for k, v in result.files.items()},
-        "timings": {**T.timings, "total": round(time.perf_counter() - t_start, 4)},
+        "timings": timings,
         "counts": {
             "gaussians": int(len(cloud)), "gaussians_in_file": int(cloud.file_count),
             "gaussians_loaded": int(len(cloud_in)),
-            "leaves": int(asset.n_leaves), "K": int(asset.targets.shape[1]) if asset.n_leaves else int(fit_p.K),
+            "leaves": int(asset.n_leaves), "K": int(asset.targets.shape[1]) if asset.n_leaves else int(fits.params.get("K", 0)),
             "template_label": int(fits.template_label),
             "template_vertices": int(len(asset.template_points)),
             "template_faces": int(len(asset.template_faces)),
@@ -376,8 +402,5 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         "params": asset.metadata.get("params", {}),
         "mesh_report": jsonable(getattr(template, "report", {})),
     }
-    log.info("wrote %s (%d file(s), %.1f KB; input %.1f KB, ratio %.1fx) in %.1f s", output_path,
-             len(result.files), all_bytes / 1024,
-             in_bytes / 1024, report["sizes"]["compression_ratio"], report["timings"]["total"])
     return report
 
