@@ -17,7 +17,7 @@ LAYERS = [
     {"mesh"},
     {"usd"},
     {"runtime", "edit", "viewer"},
-    {"pipeline", "api"},
+    {"pipeline", "api", "batch"},
     {"commands"},
     {"cli", "demo", "__main__"},
 ]

@@ -23,6 +23,17 @@ ORDER = 10
 
 
 def add_arguments(p) -> None:
+    p.add_argument("input", metavar="INPUT",
+                   help="3DGS capture: INRIA .ply, .compressed.ply, .spz, .sog, .splat or USD "
+                        "ParticleField3DGaussianSplat (see README, input formats)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output stage (.usda, .usdc, .usd or .usdz)")
+    p.add_argument("--report", metavar="R.json", help="write timings, counts, sizes and fit errors as JSON")
+    add_options(p)
+
+
+def add_options(p) -> None:
+    """The conversion options (frame, isolation, segmentation, fit, mesh, output), read back by
+    :func:`options_from_args`; shared with ``batch``."""
     from leaffit_usd.commands._args import (add_frame_arguments, add_isolate_arguments,
                                             add_segment_arguments, default, pos_float, pos_int)
     from leaffit_usd.fit.params import FitParams
@@ -36,11 +47,6 @@ def add_arguments(p) -> None:
     def fit(name):
         return default(FitParams, name)
 
-    p.add_argument("input", metavar="INPUT",
-                   help="3DGS capture: INRIA .ply, .compressed.ply, .spz, .sog, .splat or USD "
-                        "ParticleField3DGaussianSplat (see README, input formats)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output stage (.usda, .usdc, .usd or .usdz)")
-    p.add_argument("--report", metavar="R.json", help="write timings, counts, sizes and fit errors as JSON")
     add_frame_arguments(p)
     add_isolate_arguments(p)
     g = add_segment_arguments(p)
