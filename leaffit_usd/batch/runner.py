@@ -1,6 +1,7 @@
 """``run_batch``: plan (skip what is complete), execute, record, summarise."""
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import os
@@ -221,7 +222,8 @@ def run_batch(captures: list[Capture], outdir, options: BatchOptions) -> BatchSu
             nr = run_info["not_retried"]
             msg = (f"batch: {len(tasks)} to convert, {sk} up to date (skipped)"
                    + (f", {nr} bad input(s) not retried" if nr else "") + f" -> {outdir}")
-            (bar.write(msg, file=sys.stderr) if bar else sys.stderr.write(msg + "\n"))
+            with contextlib.suppress(OSError):
+                (bar.write(msg, file=sys.stderr) if bar else sys.stderr.write(msg + "\n"))
 
         def on_result(r: CaptureResult) -> None:
             rep = r.report or {}
@@ -236,13 +238,17 @@ def run_batch(captures: list[Capture], outdir, options: BatchOptions) -> BatchSu
             row.update(status=r.status, leaves=counts.get("leaves"), gaussians=counts.get("gaussians"),
                        seconds=r.seconds, error=r.error)
             if bar is not None:
-                bar.update(1)
-                nf = sum(1 for x in rows if x["status"] in ("failed", "cancelled"))
-                if nf:
-                    bar.set_postfix(failed=nf)
-                line = (f"done    {r.name}: {counts.get('leaves')} leaves, {_fmt_s(r.seconds)} s"
-                        if r.status == "done" else f"{r.status:<7} {r.name}: {r.error}")
-                bar.write(line, file=sys.stderr)
+                with contextlib.suppress(OSError):   # a closed stderr must not stop the batch
+                    _progress(r, counts)
+
+        def _progress(r, counts):
+            bar.update(1)
+            nf = sum(1 for x in rows if x["status"] in ("failed", "cancelled"))
+            if nf:
+                bar.set_postfix(failed=nf)
+            line = (f"done    {r.name}: {counts.get('leaves')} leaves, {_fmt_s(r.seconds)} s"
+                    if r.status == "done" else f"{r.status:<7} {r.name}: {r.error}")
+            bar.write(line, file=sys.stderr)
 
         def handler(signum, frame):
             for s in old:                # one interruption: the clean-up is not interrupted
@@ -272,8 +278,6 @@ def run_batch(captures: list[Capture], outdir, options: BatchOptions) -> BatchSu
         finally:
             for s, h in old.items():
                 signal.signal(s, h)
-            if bar is not None:
-                bar.close()
             _clean_leftovers(outdir)
             summary.rows = rows
             summary.seconds = round(time.perf_counter() - t0, 3)
@@ -284,6 +288,9 @@ def run_batch(captures: list[Capture], outdir, options: BatchOptions) -> BatchSu
                             exit_code=summary.exit_code if not summary.interrupted else None,
                             interrupted=summary.interrupted or None)
             state.save()
+            if bar is not None:     # after the save: stderr may be a closed pipe by now
+                with contextlib.suppress(Exception):
+                    bar.close()
     return summary
 
 

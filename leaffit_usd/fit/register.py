@@ -50,8 +50,9 @@ prints both rows, on 10 generated plants / 110 target leaves):
 The denoising sigma stays the paper's 0.1 (``denoise``).
 
 Timing (``benchmarks/fit_time.py``): a 14-leaf, 100k-Gaussian plant fits in ~13 s wall on 2 cores
-(1 or 2 torch threads; the small per-step tensors gain little from a second thread), peak RSS
-~0.7 GB for the whole process; ~60 ms per Adam step for 13 leaves x 1,024 Gaussians, 64^2 px.
+(one torch thread, always, for byte-identical results: ``leaffit_usd.determinism``; a second
+thread gained little on these small per-step tensors), peak RSS ~0.7 GB for the whole process;
+~60 ms per Adam step for 13 leaves x 1,024 Gaussians, 64^2 px.
 """
 from __future__ import annotations
 
