@@ -4,19 +4,21 @@ Layout (format 1)::
 
     {"tool": "leaffit-usd", "version": ..., "format": 1,
      "captures": {NAME: {                     one record per capture ever converted into OUTDIR
-         "status": "done" | "failed" | "running" | "pending" | "cancelled",
+         "status": "done" | "failed" | "pending" (queued or running) | "cancelled",
          "input": path, "input_sha256": hex, "options_sha256": hex, "options": {...},
          "error": one line ("" when done), "exit_code": int | null,
          "seconds": worker wall time, "timings": {stage: s}, "counts": {...},
          "outputs": {path relative to OUTDIR/NAME: bytes}, "stage": "NAME/NAME.usda",
-         "log": "NAME/convert.log", "host": ..., "threads": int,
+         "log": "NAME/convert.log", "host": ..., "threads": int, "fit": {chamfer_mean, max},
          "started": ISO time, "finished": ISO time, "renamed_from": "" | name}},
      "runs": [{"started", "finished", "seconds", "captures", "converted", "skipped",
-               "failed", "exit_code", "executor", "jobs", "threads"}]}
+               "not_retried", "failed", "exit_code", "interrupted", "executor", "jobs",
+               "threads"}]}
 
-A record is "done" only when its outputs were moved into place; a killed batch leaves "running"
-or "pending" records, which a rerun converts again. Only the process that runs the batch writes
-this file (executors report results to it), so one writer, atomic replaces, no locking races.
+A record is "done" only when its outputs were moved into place; a killed batch leaves "pending"
+or "cancelled" records, which a rerun converts again (as it does "failed" ones, except a bad
+input, exit code 2, whose input and options are unchanged). Only the process that runs the
+batch writes this file (executors report results to it): one writer, atomic replaces.
 """
 from __future__ import annotations
 
