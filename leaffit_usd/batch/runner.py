@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from leaffit_usd.batch.captures import Capture
-from leaffit_usd.batch.state import BatchState, batch_lock, now_iso, options_sha256
+from leaffit_usd.batch.state import BatchState, batch_lock, now_iso, options_json, options_sha256
 from leaffit_usd.batch.task import LOG_NAME, WORK_PREFIX, CaptureResult, CaptureTask
 from leaffit_usd.errors import ParameterError
 
@@ -149,8 +149,8 @@ def run_batch(captures: list[Capture], outdir, options: BatchOptions) -> BatchSu
         plan = []
         for c in captures:
             copt = dataclasses.replace(base, **c.overrides) if c.overrides else base
-            odict = dataclasses.asdict(copt)
-            plan.append((c, odict, options_sha256(odict), file_sha256(c.path)))
+            odict = options_json(copt)
+            plan.append((c, copt, odict, options_sha256(odict), file_sha256(c.path)))
 
         def keep(name, isha, osha) -> str:
             """"done": complete and up to date; "failed": a bad-input failure (exit code 2) of
@@ -165,13 +165,13 @@ def run_batch(captures: list[Capture], outdir, options: BatchOptions) -> BatchSu
                 return "failed"
             return ""
 
-        n_run = sum(1 for c, _, osha, isha in plan if not keep(c.name, isha, osha))
+        n_run = sum(1 for c, _, _, osha, isha in plan if not keep(c.name, isha, osha))
         if o.executor == "dask" and o.scheduler:
             jobs, threads = max(1, o.jobs or 1), o.threads or 1
         else:
             jobs, threads = plan_parallelism(n_run, o.jobs, o.threads)
         summary.jobs, summary.threads = jobs, threads
-        for c, odict, osha, isha in plan:
+        for c, copt, odict, osha, isha in plan:
             row = {"name": c.name, "input": str(c.path), "status": "", "leaves": None,
                    "gaussians": None, "seconds": None, "error": "",
                    "stage": f"{c.name}/{c.name}.{o.stage_format}"}
@@ -192,7 +192,7 @@ def run_batch(captures: list[Capture], outdir, options: BatchOptions) -> BatchSu
                 continue
             tasks.append(CaptureTask(
                 name=c.name, input=str(c.path), outdir=str(outdir),
-                stage_name=f"{c.name}.{o.stage_format}", options=odict, threads=threads,
+                stage_name=f"{c.name}.{o.stage_format}", options=copt, threads=threads,
                 timeout=o.timeout, max_memory=o.max_memory))
             state.captures[c.name] = {
                 "status": "pending", "input": str(c.path), "input_sha256": isha,

@@ -42,6 +42,22 @@ def now_iso() -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
 
 
+def options_json(options) -> dict:
+    """A ``ConvertOptions`` (nested parameter dataclasses, numpy vectors) as plain JSON values."""
+    import dataclasses
+
+    import numpy as np
+
+    def default(o):
+        if isinstance(o, np.ndarray):
+            return o.tolist()
+        if isinstance(o, np.generic):
+            return o.item()
+        return str(o)
+
+    return json.loads(json.dumps(dataclasses.asdict(options), default=default, sort_keys=True))
+
+
 def options_sha256(options: dict) -> str:
     """Hash of a capture's conversion options (ConvertOptions as a dict, the tool version and the
     contents of the files they name): a change to any of them redoes the capture."""

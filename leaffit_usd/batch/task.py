@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import pickle
 import shutil
 import signal
 import subprocess
@@ -40,10 +41,10 @@ RESULT_NAME = ".result.json"     # worker -> task: status and error line (inside
 
 @dataclass
 class CaptureTask:
-    """Everything a worker needs to convert one capture (JSON-serialisable, paths absolute).
+    """Everything a worker needs to convert one capture (picklable, paths absolute).
 
     name : output folder name; input : capture file; outdir : the batch's output folder
-    stage_name : the stage's file name (``NAME.usda``); options : ``ConvertOptions`` as a dict
+    stage_name : the stage's file name (``NAME.usda``); options : ``pipeline.ConvertOptions``
     threads : torch / BLAS threads of the worker process
     timeout : seconds before the worker is killed (None = no limit)
     max_memory : bytes of resident memory before the worker is killed (None = no limit)
@@ -53,7 +54,7 @@ class CaptureTask:
     input: str
     outdir: str
     stage_name: str
-    options: dict
+    options: object
     threads: int = 1
     timeout: float | None = None
     max_memory: int | None = None
@@ -158,7 +159,7 @@ def run_capture(task: CaptureTask, should_stop: Callable[[], bool] | None = None
     work = cdir / f"{WORK_PREFIX}{uuid.uuid4().hex[:12]}"
     work.mkdir()
     log_path = cdir / LOG_NAME
-    payload = json.dumps({**asdict(task), "work": str(work), "parent": os.getpid()})
+    payload = pickle.dumps({"task": task, "work": str(work), "parent": os.getpid()})
     t0 = time.perf_counter()
     status, error, code = "failed", "", None
     try:
@@ -171,7 +172,7 @@ def run_capture(task: CaptureTask, should_stop: Callable[[], bool] | None = None
                 stdout=log, stderr=subprocess.STDOUT, cwd=str(work), env=thread_env(task.threads),
                 start_new_session=True)
             try:
-                proc.stdin.write(payload.encode())
+                proc.stdin.write(payload)
                 proc.stdin.close()
             except BrokenPipeError:
                 pass

@@ -1,4 +1,4 @@
-"""Worker process of a batch: ``python -m leaffit_usd.batch.worker`` < task JSON.
+"""Worker process of a batch: ``python -m leaffit_usd.batch.worker`` < pickled task.
 
 Started by :func:`leaffit_usd.batch.task.run_capture` with the capture's log as stdout/stderr and
 its work folder as the current directory. Converts one capture with ``pipeline.convert`` into
@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import pickle
 import signal
 import sys
 import traceback
@@ -45,12 +46,12 @@ def _relative_report(report: dict, work: Path) -> dict:
 
 
 def main() -> int:
-    task = json.loads(sys.stdin.read())
-    _die_with_parent(int(task["parent"]))
+    msg = pickle.loads(sys.stdin.buffer.read())      # from run_capture, our own parent
+    _die_with_parent(int(msg["parent"]))
     # SIGTERM from the batch (cancel, time limit) -> a clean exit through the finally clauses
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
-    work = Path(task["work"])
-    threads = max(1, int(task.get("threads", 1)))
+    task, work = msg["task"], Path(msg["work"])
+    threads = max(1, int(task.threads))
 
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", "%H:%M:%S"))
@@ -67,14 +68,13 @@ def main() -> int:
 
         torch.set_num_threads(threads)
         from leaffit_usd.errors import UserError
-        from leaffit_usd.pipeline import ConvertOptions, convert
+        from leaffit_usd.pipeline import convert
     except Exception as e:  # noqa: BLE001
         traceback.print_exc()
         result(status="failed", error=f"internal error: {type(e).__name__}: {e}")
         return 1
     try:
-        options = ConvertOptions(**task["options"])
-        report = convert(task["input"], work / task["stage_name"], options)
+        report = convert(task.input, work / task.stage_name, task.options)
     except UserError as e:
         msg = str(e).splitlines()[0] if str(e) else type(e).__name__
         sys.stderr.write(f"error: {msg}\n")

@@ -77,8 +77,9 @@ def run(args) -> int:
     from pathlib import Path
 
     from leaffit_usd.batch import BatchOptions, collect_captures, run_batch, summary_table
+    from leaffit_usd.commands._args import parse_root, parse_up
     from leaffit_usd.commands.convert import options_from_args
-    from leaffit_usd.errors import UserError
+    from leaffit_usd.errors import InputFileError, UserError
 
     for flag, v in (("--labels", args.labels), ("--edits", args.edits)):
         if v is not None:
@@ -90,6 +91,13 @@ def run(args) -> int:
     if outdir.exists() and not outdir.is_dir():
         raise UserError(f"{outdir}: exists and is not a folder")
     captures = collect_captures(args.inputs, exclude=outdir)
+    for c in captures:                     # a manifest's up / root, parsed as --up / --root
+        for key, parse in (("up", parse_up), ("root", parse_root)):
+            if isinstance(c.overrides.get(key), str):
+                try:
+                    c.overrides[key] = parse(c.overrides[key])
+                except UserError as e:
+                    raise InputFileError(c.source, f"{c.path.name}: {key}: {e}") from None
     opts = BatchOptions(convert=options_from_args(args), stage_format=args.format, jobs=args.jobs,
                         threads=args.threads, timeout=args.timeout, max_memory=args.max_memory,
                         force=args.force, executor=args.executor, scheduler=args.scheduler,
