@@ -47,13 +47,14 @@ def _python_for(script: str, shared: Path) -> str:
     return out.stdout.strip().splitlines()[-1]
 
 
-def ensure_set(name: str, seed: int, gaussians: int | None = None) -> Path:
-    """Folder of set ``name`` at ``seed`` (generated on first use; 1-15 s a plant)."""
+def ensure_set(name: str, seed: int, gaussians: int | None = None, count: int | None = None) -> Path:
+    """Folder of set ``name`` at ``seed`` (generated on first use; 1-15 s a plant); ``gaussians``
+    and ``count`` pass ``--gaussians`` / ``--count`` to the generator (scale tests)."""
     shared = shared_plants_dir()
     if shared is None:
         raise FileNotFoundError("../shared/plants is absent")
     script, extra = SETS[name]
-    tag = f"{name}-{seed}" + (f"-n{gaussians}" if gaussians else "")
+    tag = f"{name}-{seed}" + (f"-n{gaussians}" if gaussians else "") + (f"-c{count}" if count else "")
     out = cache_dir() / tag
     if (out / "index.json").exists():
         return out
@@ -63,6 +64,8 @@ def ensure_set(name: str, seed: int, gaussians: int | None = None) -> Path:
            "--quiet", *extra]
     if gaussians:
         cmd += ["--gaussians", str(gaussians)]
+    if count:
+        cmd += ["--count", str(count)]
     subprocess.run(cmd, check=True)
     return out
 

@@ -20,6 +20,19 @@ pytestmark = pytest.mark.skipif(not Path(CHROMIUM).exists() and not shutil.which
                                 reason="chromium not installed (apt-get install chromium)")
 
 
+def _open_editor(playwright, server):
+    """(browser, page, page errors) with the editor loaded from ``server`` in headless Chromium."""
+    browser = playwright.chromium.launch(
+        executable_path=CHROMIUM if Path(CHROMIUM).exists() else shutil.which("chromium"),
+        args=["--no-sandbox", "--disable-gpu", "--headless=new"])
+    page = browser.new_page(viewport={"width": 1100, "height": 750})
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(server.url)
+    page.wait_for_function("() => window.leaffit && window.leaffit.ready", timeout=30000)
+    return browser, page, errors
+
+
 @pytest.fixture(scope="module")
 def sample(plant, tmp_path_factory):
     """(ply path, ground-truth labels in file order): a bundled sample plant, else the synthetic one."""
@@ -41,13 +54,7 @@ def test_brush_assign_save_in_chromium(sample, heat, tmp_path):
     server = ViewerServer(session).start_background()
     try:
         with sync_api.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM if Path(CHROMIUM).exists() else shutil.which("chromium"),
-                                        args=["--no-sandbox", "--disable-gpu", "--headless=new"])
-            page = browser.new_page(viewport={"width": 1100, "height": 750})
-            errors = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(server.url)
-            page.wait_for_function("() => window.leaffit && window.leaffit.ready", timeout=30000)
+            browser, page, errors = _open_editor(p, server)
             page.eval_on_selector("#radius", "e => { e.value = '0.04'; e.dispatchEvent(new Event('input')); }")
             # choose the leaf with the most Gaussians visible under the cursor; a stroke along it
             rng = np.random.default_rng(0)
@@ -131,13 +138,7 @@ def test_opens_on_the_least_confident_leaf(plant, heat, tmp_path):
     server = ViewerServer(session).start_background()
     try:
         with sync_api.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM if Path(CHROMIUM).exists() else shutil.which("chromium"),
-                                        args=["--no-sandbox", "--disable-gpu", "--headless=new"])
-            page = browser.new_page(viewport={"width": 1100, "height": 750})
-            errors = []
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(server.url)
-            page.wait_for_function("() => window.leaffit && window.leaffit.ready", timeout=30000)
+            browser, page, errors = _open_editor(p, server)
             assert page.evaluate("window.leaffit.checked()") == [2]
             status = page.inner_text("[data-testid=status]")
             assert "leaf 2 is the least confident (0.20)" in status and "2 doubtful leaves" in status
