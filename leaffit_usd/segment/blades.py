@@ -73,7 +73,9 @@ SPLIT_CONFIDENCE = 0.6   # confidence factor of a leaf cut from a larger blade
 # within twice, and >= ~150 degrees within four times the radius; a leaf blade does not
 TUBE_WIDE = ((2, 0.5), (4, 0.7))
 PALM_BALANCE = 0.2       # leaflets cut apart at their bases are of comparable size (>= 1/5)
-ISLAND_GAP = 0.1         # pieces farther than this (plant reach units) from the plant are not it
+ISLAND_GAP = 0.5         # pieces farther than this (plant reach units) from the plant are not it
+#   (a hole in uneven sampling can leave a leaf 0.1-0.3 away from the rest; clutter is the
+#   isolation stage's job)
 HEAT_SUBSAMPLE = 3       # the root distance's heat operator runs on every 3rd graph point (voxel)
 
 
