@@ -1,16 +1,20 @@
 """Segmentation benchmark: the paper's Table 1 (Acc, mIoU, mF1, PQ, time; mean and std).
 
-Runs ours (heat geodesics, :func:`leaffit_usd.segment.auto.segment_plant`) and the training-free
-Euclidean-density baseline (:func:`benchmarks.baselines.segmentation.segment_density`) on the generated
-benchmark plants (``samples.benchmark_suite()``, ground truth from the generator), reported per
-group: the paper's "elliptic" set (its six plants: rubber tree, green pepper, golden pothos,
-black pearl pepper, ruby leaf, white flag bush), and by the generator's leaf family: elliptic,
-lobed, long-thin, other (cordate, mixed) and the hard overlap plants (touching, vertical,
-horizontal). Time is the segmentation only (normals + segment_plant from working-frame points; the frame
-set-up, file reading and plant generation are not counted), wall clock, with the process CPU time
-beside it (on a shared machine the wall clock mostly measures the other processes).
+Our suite: ours (the blades method, :mod:`leaffit_usd.segment.blades`, the default), the apex
+method (the paper's march with our fixes, the previous default), the paper's rules exactly, and
+the training-free Euclidean-density baseline (``benchmarks/baselines/segmentation.py``) on the
+generated plants (``samples.benchmark_suite()``, ground truth from the generator; ground-truth up
+and root), by group: the paper's "elliptic" set (its six plants), and by the generator's leaf
+family: elliptic, lobed, long-thin, other (cordate, mixed) and the hard overlap plants. Time is
+the segmentation only (normals + segment_plant from working-frame points), wall clock, with the
+process CPU time beside it (on a shared machine the wall clock mostly measures the others).
+
+``--external`` also runs the external sets of ../shared/plants (benchmarks/seg_external.py: the
+root given as a click, the up axis estimated; skipped with a message when ../shared is absent),
+ours beside the paper's rules, with the per-leaf confidence's ROC AUC.
 
     .venv/bin/python benchmarks/segmentation.py [--gaussians 100000] [--only NAME ...]
+        [--methods ours ours_apex ours_paper_rules baseline] [--external [SET ...]] [--seeds 1 2 3]
 
 Writes benchmarks/results/segmentation.json.
 """
