@@ -38,13 +38,30 @@ class TemplateMesh:
 
 
 @dataclass
-class Stem:
-    """Stem cylinders from the rootward tree, working frame.
+class StemMesh:
+    """One level of detail of the stem mesh, working frame.
 
-    starts, ends : (E, 3) float32, axis end points of each cylinder
-    radii_start, radii_end : (E,) float32, radii at each end (Leonardo's rule), working units
-    parent : (E,) int64, index of the parent cylinder (-1 at the root)
-    points, faces : the triangle mesh of all cylinders and joint spheres ((P, 3) float32, (F, 3) int32)
+    points : (P, 3) float32; faces : (G, 3) int32, outward; colors : (P, 3) float32 sRGB in
+    [0, 1] from the stem's Gaussians, or None
+    """
+
+    points: np.ndarray
+    faces: np.ndarray
+    colors: np.ndarray | None = None
+
+
+@dataclass
+class Stem:
+    """The stem as swept tubes, working frame.
+
+    starts, ends : (E, 3) float32, axis segments between consecutive rings of every tube
+    radii_start, radii_end : (E,) float32, tube radius at each end, working units
+    parent : (E,) int64, index of the parent segment (previous ring of the same tube; for a
+        branch's first segment, the parent tube's segment it grows from; -1 at the root)
+    points, faces : the LOD0 triangle mesh of all tubes ((P, 3) float32, (F, 3) int32)
+    colors : (P, 3) float32 sRGB vertex colours from the stem Gaussians, or None
+    lods : coarser levels of detail (LOD1, LOD2, ...), each a :class:`StemMesh`
+    info : how it was built (skeleton kind, node and tube counts, radii priors)
     """
 
     starts: np.ndarray
@@ -54,3 +71,6 @@ class Stem:
     parent: np.ndarray
     points: np.ndarray
     faces: np.ndarray
+    colors: np.ndarray | None = None
+    lods: list = field(default_factory=list)
+    info: dict = field(default_factory=dict)

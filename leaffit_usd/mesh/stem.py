@@ -1,74 +1,117 @@
-"""Stem generation: the rootward tree's non-leaf edges become tapered cylinders (paper, "Stem Generation").
+"""Stem generation: smooth swept tubes along a skeleton of the stem Gaussians (paper, "Stem
+Generation", extended).
 
-Radii follow Leonardo's rule: at every junction the cross-section area of the parent branch
-equals the sum of its children's. Pure Leonardo with a petiole radius ``r_p`` fixes the root
-radius to ``r_p * sqrt(n_leaves)``; the paper lets the user give both a root and a petiole radius
-and interpolates. We do it so the rule still holds *exactly* at every junction: the area of an
-edge at node ``u`` is
+1. **Skeleton.** The stem Gaussians (label 0) are joined in a k-nearest-neighbour graph;
+   isolated specks (floaters) are dropped, pieces of the stem separated by a gap are bridged to
+   the root's piece. Geodesic distance from the root over that graph is cut into level sets of
+   width ``level_width``; every connected piece of a level set is one skeleton node at the
+   centroid of its Gaussians (for a tube sampled around its circumference, the centroid lies on
+   the axis), linked to the piece of the previous level it touches. Short terminal spurs are
+   pruned. When the capture has too few stem Gaussians the segmentation's rootward tree is the
+   skeleton instead (``skeleton="tree"``, the paper's).
+2. **Streams.** At every junction the child with the longest subtree continues its parent, so
+   the main stem is one tube from the root to its top and every branch / petiole one tube
+   starting *on its parent's axis* (the junction is continuous: the branch grows out of the
+   parent, no sphere lumps).
+3. **Smoothing.** Each stream's node centroids (weighted by their Gaussian counts) are
+   smoothed by a cubic smoothing spline per coordinate against arc length
+   (``scipy.interpolate.make_smoothing_spline``, smoothing by generalised cross-validation),
+   then resampled with rings every ``ring_spacing`` local radii.
+4. **Radii.** Each node's observed radius is the median distance of its Gaussians to the smooth
+   axis. Cross-section areas ``a = r^2`` are then solved in one sparse least-squares problem:
+   data (each node's observed area, weighted by its Gaussian count) + smoothness along each
+   stream + **Leonardo's rule as a regulariser** (``a_parent = sum a_children`` at every
+   junction, weight ``leonardo_weight``); a node without data takes the Leonardo/tapering prior
+   of the tree (module functions :func:`leonardo_radii`, below). Rows are relative (divided by
+   the local area), so thin petioles weigh as much as the trunk.
+5. **Tubes.** Rings of ``sides`` vertices, rotation-minimising frames (double reflection), a
+   flat cap at the root, and a tapered, closed tip at the end of every stream (a petiole at
+   its leaf base): the radius rounds off to a point over ``tip_length`` radii.
+6. **Colour.** Every vertex takes the mean colour of its nearest stem Gaussians (vertex colours,
+   sRGB in [0, 1]; the writer converts to linear ``displayColor``).
 
-    A(edge, u) = s(t(u)) * n(edge) * pi * r_p**2
+The same skeleton is swept at coarser levels of detail (fewer sides, sparser rings) for the
+stage's ``LOD`` variant set (:data:`LOD_LEVELS`).
 
-with ``n(edge)`` the number of tips (petioles) the edge feeds, ``t(u)`` in [0, 1] the node's
-relative position between the root (0) and the tips below it (1):
-``t = d(u) / (d(u) + h(u))`` (``d`` path length from the root, ``h`` longest path length to a tip
-below), and ``s`` a scale interpolated linearly from ``s_root = r_root**2 / (n_root r_p**2)`` at
-the root to 1 at the tips. All edges meeting at a junction share ``s(t(u))``, so parent area =
-sum of children's areas there; along an unbranched run the radius tapers smoothly.
-
-Mesh: each maximal unbranched chain is one tube (rings at its nodes, oriented by the averaged
-tangent: no gaps at bends); junctions, the root and the tips get a sphere of the largest radius
-meeting there, so joints are closed.
+The tree-based Leonardo rule of the paper (:func:`leonardo_radii`): the area of an edge at node
+``u`` is ``A = s(t(u)) * n(edge) * pi * r_p**2`` with ``n`` the tips it feeds and ``s``
+interpolated from the root scale to 1 at the tips, so it holds exactly at every junction.
 """
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from leaffit_usd.errors import ParameterError
-from leaffit_usd.mesh.result import Stem
+from leaffit_usd.mesh.result import Stem, StemMesh
 
 log = logging.getLogger("leaffit_usd")
 
 DEFAULT_ROOT_RADIUS = 0.01  # working units (plant height 1): used when the capture can't tell
 DEFAULT_PETIOLE_RADIUS = 0.003
+SKELETONS = ("auto", "gaussians", "tree")
+# (sides, ring spacing multiplier) of the coarser levels of detail, after LOD0's own
+LOD_LEVELS = ((8, 2.0), (5, 4.0))
 
 
 @dataclass
 class StemParams:
     """Stem parameters, working units (plant height = 1).
 
-    root_radius, petiole_radius : cylinder radius at the root and at the petioles; ``None`` =
-        estimated from the capture (spread of the stem Gaussians around the root / the leaf bases)
-    sides : number of sides of each tube (>= 3)
-    sphere_rings : latitude rings of the joint spheres (>= 2); longitude = ``sides``
-    estimate_ball : radius of the neighbourhood used by the estimates, working units
-    simplify : unbranched runs of tree edges are merged into fewer cylinders while the axis stays
-        within ``simplify`` x the local radius of the tree's polyline (Douglas-Peucker); 0 keeps
-        every tree edge. Junctions, tips and the root are always kept, so Leonardo's rule holds.
+    root_radius, petiole_radius : radius at the root and at the petioles for the tree prior
+        (Leonardo's rule); ``None`` = estimated from the capture. With the Gaussian skeleton they
+        only fill in where the capture has no Gaussians to measure.
+    skeleton : "gaussians" (level sets of the stem Gaussians), "tree" (the segmentation's
+        rootward tree, the paper's) or "auto" (Gaussians; the tree when fewer than
+        ``min_gaussians`` stem Gaussians are usable)
+    level_width : level-set spacing of the Gaussian skeleton (working units)
+    neighbours : k of the stem Gaussians' neighbour graph
+    min_gaussians : fewest stem Gaussians for the Gaussian skeleton
+    prune : terminal spurs shorter than ``prune`` x level_width are dropped
+    leonardo_weight : weight of Leonardo's rule against the measured radii (relative rows)
+    smooth_weight : weight of the radius smoothness along a stream
+    sides : vertices per ring (LOD0)
+    ring_spacing : ring spacing along the axis, multiple of the local radius (clamped to
+        [0.25, 2] x level_width)
+    tip_length : length of the rounded tip, multiple of the tip radius
+    estimate_ball : radius of the neighbourhood used by the tree prior's estimates
     """
 
     root_radius: float | None = None
     petiole_radius: float | None = None
-    sides: int = 8
-    sphere_rings: int = 4
+    skeleton: str = "auto"
+    level_width: float = 0.01
+    neighbours: int = 10
+    min_gaussians: int = 60
+    prune: float = 2.0
+    leonardo_weight: float = 1.0
+    smooth_weight: float = 1.0
+    sides: int = 12
+    ring_spacing: float = 1.0
+    tip_length: float = 1.5
     estimate_ball: float = 0.05
-    simplify: float = 0.5
 
     def validate(self) -> None:
         for name in ("root_radius", "petiole_radius"):
             v = getattr(self, name)
             if v is not None and not (np.isfinite(v) and v > 0):
                 raise ParameterError(name, "a positive radius (working units) or None", v)
+        if self.skeleton not in SKELETONS:
+            raise ParameterError("skeleton", " or ".join(SKELETONS), self.skeleton)
         if int(self.sides) < 3:
             raise ParameterError("sides", "an integer >= 3", self.sides)
-        if int(self.sphere_rings) < 2:
-            raise ParameterError("sphere_rings", "an integer >= 2", self.sphere_rings)
-        if not (np.isfinite(self.simplify) and self.simplify >= 0):
-            raise ParameterError("simplify", "a number >= 0 (multiple of the local radius)", self.simplify)
-        if not (np.isfinite(self.estimate_ball) and self.estimate_ball > 0):
-            raise ParameterError("estimate_ball", "a positive distance", self.estimate_ball)
+        if int(self.neighbours) < 2:
+            raise ParameterError("neighbours", "an integer >= 2", self.neighbours)
+        for name in ("level_width", "ring_spacing", "estimate_ball"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ParameterError(name, "a positive number", v)
+        for name in ("prune", "leonardo_weight", "smooth_weight", "tip_length"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ParameterError(name, "a number >= 0", v)
 
 
 # ---- radius estimates from the capture -------------------------------------------------------
@@ -231,135 +274,611 @@ def leonardo_radii(seg, points_working, root_radius: float, petiole_radius: floa
     return child, parent, r_parent_end, r_child_end, n[child], t[parent], t[child]
 
 
-# ---- mesh -------------------------------------------------------------------------------------
-def _frame(axis: np.ndarray, ref: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors orthogonal to ``axis`` (parallel transport of ``ref`` when given)."""
-    a = axis / max(np.linalg.norm(axis), 1e-12)
-    if ref is None or abs(np.dot(ref, a)) > 0.99:
-        ref = np.array([1.0, 0, 0]) if abs(a[0]) < 0.9 else np.array([0, 1.0, 0])
-    u = ref - np.dot(ref, a) * a
-    u /= np.linalg.norm(u)
-    return u, np.cross(a, u)
+# ---- skeleton ---------------------------------------------------------------------------------
+@dataclass
+class Skeleton:
+    """A rooted tree of axis nodes, working frame.
 
-
-def _sphere(center, radius, sides, rings):
-    th = np.linspace(0, np.pi, rings + 1)[1:-1]
-    ph = np.linspace(0, 2 * np.pi, sides, endpoint=False)
-    ring = np.stack([np.sin(th)[:, None] * np.cos(ph), np.sin(th)[:, None] * np.sin(ph),
-                     np.cos(th)[:, None].repeat(sides, 1)], -1).reshape(-1, 3)
-    v = np.concatenate([[[0, 0, 1.0]], ring, [[0, 0, -1.0]]]) * radius + center
-    f = []
-    R = len(th)
-    for j in range(sides):
-        j2 = (j + 1) % sides
-        f.append([0, 1 + j, 1 + j2])
-        for i in range(R - 1):
-            a, b = 1 + i * sides + j, 1 + i * sides + j2
-            c, d = a + sides, b + sides
-            f += [[a, c, d], [a, d, b]]
-        last = 1 + R * sides
-        f.append([1 + (R - 1) * sides + j, last, 1 + (R - 1) * sides + j2])
-    return v, np.asarray(f, np.int64)
-
-
-def _tube(path: np.ndarray, radii: np.ndarray, sides: int):
-    """Tube through ``path`` (P, 3) with per-ring ``radii`` (P,); open ends. Outward faces."""
-    P = len(path)
-    tang = np.zeros_like(path)
-    seg = np.diff(path, axis=0)
-    seg /= np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-12)
-    tang[0], tang[-1] = seg[0], seg[-1]
-    if P > 2:
-        mid = seg[:-1] + seg[1:]
-        bad = np.linalg.norm(mid, axis=1) < 1e-9
-        mid[bad] = seg[1:][bad]
-        tang[1:-1] = mid
-    ang = np.linspace(0, 2 * np.pi, sides, endpoint=False)
-    verts = []
-    ref = None
-    for i in range(P):
-        u, w = _frame(tang[i], ref)
-        ref = u
-        # keep the tube's thickness at bends: scale the ring by 1/cos(half bend angle) (capped)
-        scale = 1.0
-        if 0 < i < P - 1:
-            c = float(np.dot(seg[i - 1], tang[i] / max(np.linalg.norm(tang[i]), 1e-12)))
-            scale = 1.0 / max(c, 0.5)
-        verts.append(path[i] + radii[i] * scale * (np.cos(ang)[:, None] * u + np.sin(ang)[:, None] * w))
-    v = np.concatenate(verts)
-    f = []
-    for i in range(P - 1):
-        for j in range(sides):
-            j2 = (j + 1) % sides
-            a, b = i * sides + j, i * sides + j2
-            f += [[a, b, b + sides], [a, b + sides, a + sides]]
-    return v, np.asarray(f, np.int64)
-
-
-def _rdp(path: np.ndarray, tol: np.ndarray) -> list[int]:
-    """Douglas-Peucker on a polyline (P, 3) with a per-vertex tolerance (P,); kept indices."""
-    keep = [0, len(path) - 1]
-    stack = [(0, len(path) - 1)]
-    while stack:
-        i, j = stack.pop()
-        if j - i < 2:
-            continue
-        a, b = path[i], path[j]
-        ab = b - a
-        L2 = float(ab @ ab)
-        mid = path[i + 1:j]
-        t = np.clip(((mid - a) @ ab) / L2, 0, 1) if L2 > 0 else np.zeros(len(mid))
-        d = np.linalg.norm(mid - (a + t[:, None] * ab), axis=1)
-        k = int(np.argmax(d - tol[i + 1:j]))
-        if d[k] > tol[i + 1 + k]:
-            keep.append(i + 1 + k)
-            stack += [(i, i + 1 + k), (i + 1 + k, j)]
-    return sorted(set(keep))
-
-
-def simplify_chains(points, child, parent, r_parent_end, r_child_end, factor: float):
-    """Merge unbranched runs of stem edges (see ``StemParams.simplify``); same array layout.
-
-    points : (S, 3) tree node positions; child, parent : (E,) edge end nodes; radii per edge end.
+    pos : (n, 3) float64 node positions; parent : (n,) int64, -1 at the root (node 0)
+    count : (n,) int64, Gaussians measured at each node (0 = no data: tree skeleton)
+    members : (M,) int64 point indices that make up the nodes; member_node : (M,) their node
     """
-    if factor <= 0 or len(child) == 0:
-        return child, parent, r_parent_end, r_child_end
-    S = len(points)
-    deg = np.zeros(S, np.int64)
-    np.add.at(deg, child, 1)
-    np.add.at(deg, parent, 1)
-    edge_of_child = np.full(S, -1, np.int64)
-    edge_of_child[child] = np.arange(len(child))
-    kids: dict[int, list[int]] = {}
-    for e, p in enumerate(parent.tolist()):
-        kids.setdefault(p, []).append(e)
-    out_c, out_p, out_rp, out_rc = [], [], [], []
-    for e0 in range(len(child)):
-        if deg[parent[e0]] == 2 and edge_of_child[parent[e0]] >= 0:
-            continue  # not the start of a chain
-        chain = [e0]
-        while deg[child[chain[-1]]] == 2 and len(kids.get(int(child[chain[-1]]), [])) == 1:
-            chain.append(kids[int(child[chain[-1]])][0])
-        nodes = np.concatenate([[parent[chain[0]]], child[chain]])
-        radii = np.concatenate([[r_parent_end[chain[0]]], r_child_end[chain]])
-        keep = _rdp(points[nodes], factor * radii)
-        for i, j in zip(keep[:-1], keep[1:]):
-            out_p.append(nodes[i])
-            out_c.append(nodes[j])
-            out_rp.append(radii[i] if i > 0 else r_parent_end[chain[0]])
-            out_rc.append(radii[j])
-    return (np.asarray(out_c, np.int64), np.asarray(out_p, np.int64),
-            np.asarray(out_rp, np.float64), np.asarray(out_rc, np.float64))
+
+    pos: np.ndarray
+    parent: np.ndarray
+    count: np.ndarray
+    members: np.ndarray
+    member_node: np.ndarray
+
+    def children(self) -> list[list[int]]:
+        kids: list[list[int]] = [[] for _ in range(len(self.pos))]
+        for c, p in enumerate(self.parent.tolist()):
+            if p >= 0:
+                kids[p].append(c)
+        return kids
 
 
-def build_stem(seg, points_working, fits=None, params: StemParams | None = None) -> Stem:
-    """Stem cylinders from ``seg``'s rootward tree.
+def _neighbour_graph(P: np.ndarray, k: int):
+    """Symmetric kNN graph (CSR, edge weight = length) and the length beyond which edges are cut."""
+    from scipy.sparse import coo_matrix
+    from scipy.spatial import cKDTree
 
-    seg : Segmentation (tree_nodes, tree_parent, tree_leaf, root_index, labels, leaf_base)
+    M = len(P)
+    k = min(k, M - 1)
+    d, j = cKDTree(P).query(P, k=k + 1)
+    d, j = d[:, 1:], j[:, 1:]
+    gap = 3.0 * float(np.median(d[:, -1]))
+    rows = np.repeat(np.arange(M), k)
+    w, cols = d.ravel(), j.ravel()
+    ok = (w <= gap) & (w > 0)
+    A = coo_matrix((w[ok], (rows[ok], cols[ok])), shape=(M, M)).tocsr()
+    return A.maximum(A.T).tocoo(), gap
+
+
+def gaussian_skeleton(points: np.ndarray, labels: np.ndarray, root_index: int,
+                      params: StemParams) -> Skeleton | None:
+    """Level-set skeleton of the stem Gaussians (label 0), or None when there are too few.
+
+    points : (N, 3) working frame; labels : (N,) segmentation labels; root_index : the root
+    Gaussian. See the module docstring (step 1).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components, dijkstra
+    from scipy.spatial import cKDTree
+
+    idx = np.flatnonzero(np.asarray(labels) == 0)
+    if len(idx) < max(int(params.min_gaussians), 4):
+        return None
+    P = points[idx]
+    M = len(P)
+    A, gap = _neighbour_graph(P, int(params.neighbours))
+    ncomp, comp = connected_components(A, directed=False)
+    r0 = int(np.argmin(np.linalg.norm(P - points[int(root_index)], axis=1))) \
+        if 0 <= int(root_index) < len(points) else int(np.argmin(P[:, 2]))
+    sizes = np.bincount(comp, minlength=ncomp)
+    min_piece = max(20, int(0.002 * M))
+    rows, cols, vals = [A.row], [A.col], [A.data]
+    # bridge every sizeable piece to the root's piece (closest pair first); specks are dropped
+    joined = comp == comp[r0]
+    others = [c for c in np.argsort(-sizes) if c != comp[r0] and sizes[c] >= min_piece]
+    while others:
+        tree = cKDTree(P[joined])
+        jidx = np.flatnonzero(joined)
+        best = None
+        for c in others:
+            ci = np.flatnonzero(comp == c)
+            dd, jj = tree.query(P[ci])
+            m = int(np.argmin(dd))
+            if best is None or dd[m] < best[0]:
+                best = (float(dd[m]), c, int(ci[m]), int(jidx[jj[m]]))
+        dist, c, a, b = best
+        rows.append(np.array([a, b]))
+        cols.append(np.array([b, a]))
+        vals.append(np.array([max(dist, 1e-9)] * 2))
+        joined |= comp == c
+        others.remove(c)
+    G = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                   shape=(M, M)).tocsr()
+    g = dijkstra(G, directed=False, indices=r0)
+    ok = np.isfinite(g)
+    if ok.sum() < max(int(params.min_gaussians), 4):
+        return None
+    w = float(params.level_width)
+    level = np.where(ok, np.floor(np.where(ok, g, 0) / w), -1).astype(np.int64)
+    Gc = G.tocoo()
+    e_i, e_j = Gc.row, Gc.col
+    same = (level[e_i] == level[e_j]) & ok[e_i] & ok[e_j]
+    _, lab = connected_components(coo_matrix((np.ones(int(same.sum())), (e_i[same], e_j[same])),
+                                             shape=(M, M)), directed=False)
+    lab = np.where(ok, lab, -1)
+    uniq, lab = np.unique(lab[ok], return_inverse=True)
+    pts_ok = np.flatnonzero(ok)
+    n = len(uniq)
+    count = np.bincount(lab, minlength=n)
+    pos = np.stack([np.bincount(lab, weights=P[pts_ok, k], minlength=n) for k in range(3)], 1) / count[:, None]
+    node_level = np.zeros(n, np.int64)
+    node_level[lab] = level[pts_ok]
+    node_of = np.full(M, -1, np.int64)
+    node_of[pts_ok] = lab
+    # parent: the node of a lower level this node touches most (prefer the previous level)
+    a, b = node_of[e_i], node_of[e_j]
+    down = (a >= 0) & (b >= 0) & (node_level[b] < node_level[a])
+    parent = np.full(n, -1, np.int64)
+    if down.any():
+        ca, cb = a[down], b[down]
+        key = ca * n + cb
+        uk, cnt = np.unique(key, return_counts=True)
+        ch, pa = uk // n, uk % n
+        prev = (node_level[pa] == node_level[ch] - 1).astype(np.int64)
+        order = np.lexsort((-cnt, -prev, ch))
+        first = np.r_[True, ch[order][1:] != ch[order][:-1]]
+        parent[ch[order][first]] = pa[order][first]
+    root = int(node_of[r0])
+    parent[root] = -1
+    for u in np.flatnonzero((parent < 0) & (np.arange(n) != root)):  # touches no lower piece
+        lower = np.flatnonzero(node_level < node_level[u])
+        parent[u] = lower[np.argmin(np.linalg.norm(pos[lower] - pos[u], axis=1))] if len(lower) else root
+    sk = Skeleton(pos=pos, parent=parent, count=count.astype(np.int64),
+                  members=idx[pts_ok], member_node=lab.astype(np.int64))
+    sk = _reroot(sk, root)
+    return prune_spurs(sk, float(params.prune) * w)
+
+
+def _reroot(sk: Skeleton, root: int) -> Skeleton:
+    """Renumber the nodes reachable from ``root`` in BFS order (root = node 0); drop the rest."""
+    kids = sk.children()
+    order, head = [root], 0
+    while head < len(order):
+        order.extend(kids[order[head]])
+        head += 1
+    order = np.asarray(order, np.int64)
+    new = np.full(len(sk.pos), -1, np.int64)
+    new[order] = np.arange(len(order))
+    par = np.where(sk.parent[order] >= 0, new[np.maximum(sk.parent[order], 0)], -1)
+    par[0] = -1
+    mem = new[sk.member_node] >= 0
+    return Skeleton(pos=sk.pos[order], parent=par, count=sk.count[order],
+                    members=sk.members[mem], member_node=new[sk.member_node[mem]])
+
+
+def prune_spurs(sk: Skeleton, min_length: float) -> Skeleton:
+    """Drop terminal chains (tip up to, not including, the first junction) shorter than
+    ``min_length``; their Gaussians go to the junction node."""
+    if min_length <= 0 or len(sk.pos) < 3:
+        return sk
+    kids = sk.children()
+    keep = np.ones(len(sk.pos), bool)
+    target = np.arange(len(sk.pos))
+    for tip in [u for u in range(len(sk.pos)) if not kids[u] and u != 0]:
+        chain, u, length = [tip], tip, 0.0
+        while sk.parent[u] >= 0 and len(kids[sk.parent[u]]) == 1:
+            length += float(np.linalg.norm(sk.pos[u] - sk.pos[sk.parent[u]]))
+            u = int(sk.parent[u])
+            chain.append(u)
+        j = int(sk.parent[u])
+        if j < 0 or len(kids[j]) < 2:
+            continue  # the chain reaches the root: the whole skeleton, keep it
+        length += float(np.linalg.norm(sk.pos[u] - sk.pos[j]))
+        if length < min_length:
+            keep[chain] = False
+            target[chain] = j
+    if keep.all():
+        return sk
+    new = np.full(len(sk.pos), -1, np.int64)
+    new[keep] = np.arange(int(keep.sum()))
+    par = sk.parent[keep]
+    par = np.where(par >= 0, new[np.maximum(par, 0)], -1)
+    cnt = np.bincount(new[target], weights=sk.count, minlength=int(keep.sum())).astype(np.int64)
+    return Skeleton(pos=sk.pos[keep], parent=par, count=cnt, members=sk.members,
+                    member_node=new[target[sk.member_node]])
+
+
+def tree_skeleton(seg, points: np.ndarray) -> Skeleton | None:
+    """The segmentation's rootward tree restricted to its stem edges (no measurements)."""
+    child, parent = stem_edges(seg)
+    if len(child) == 0:
+        return None
+    nodes = np.asarray(seg.tree_nodes, np.int64)
+    used = np.unique(np.concatenate([child, parent]))
+    new = np.full(len(nodes), -1, np.int64)
+    new[used] = np.arange(len(used))
+    par = np.full(len(used), -1, np.int64)
+    par[new[child]] = new[parent]
+    roots = np.flatnonzero(par < 0)
+    pos = np.asarray(points, np.float64)[nodes[used]]
+    main = int(roots[np.argmin(pos[roots, 2])])
+    sk = Skeleton(pos=pos, parent=par, count=np.zeros(len(used), np.int64),
+                  members=np.zeros(0, np.int64), member_node=np.zeros(0, np.int64))
+    for r in roots:  # a forest: hang every other root under the nearest node of the main tree
+        if r == main:
+            continue
+        reach = np.zeros(len(pos), bool)
+        kids = sk.children()
+        stack = [main]
+        while stack:
+            u = stack.pop()
+            reach[u] = True
+            stack.extend(kids[u])
+        cand = np.flatnonzero(reach)
+        par[r] = cand[np.argmin(np.linalg.norm(pos[cand] - pos[r], axis=1))]
+    return _reroot(sk, main)
+
+
+# ---- streams, smoothing, radii ----------------------------------------------------------------
+def streams(sk: Skeleton) -> list[np.ndarray]:
+    """Node lists of the tubes: the first is the root's; a branch starts at its junction node.
+
+    At every junction the child with the longest subtree continues the parent's stream.
+    """
+    kids = sk.children()
+    n = len(sk.pos)
+    reach = np.zeros(n)
+    for u in range(n - 1, -1, -1):  # BFS order: children after parents
+        for c in kids[u]:
+            reach[u] = max(reach[u], reach[c] + float(np.linalg.norm(sk.pos[c] - sk.pos[u])))
+    out, todo = [], [(0, None)]
+    while todo:
+        u, start = todo.pop(0)
+        chain = [start] if start is not None else []
+        chain.append(u)
+        while kids[u]:
+            main = max(kids[u], key=lambda c: reach[c] + float(np.linalg.norm(sk.pos[c] - sk.pos[u])))
+            for c in kids[u]:
+                if c != main:
+                    todo.append((c, u))
+            u = main
+            chain.append(u)
+        out.append(np.asarray(chain, np.int64))
+    return out
+
+
+def _smooth_curve(pts: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Smoothed copy of a polyline (P, 3): a cubic smoothing spline per coordinate against chord
+    length, smoothing chosen by generalised cross-validation; weights (P,) (large = keep)."""
+    from scipy.interpolate import make_smoothing_spline
+
+    P = len(pts)
+    if P < 5:
+        return pts.copy()
+    t = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))]
+    if not (np.diff(t) > 1e-12).all():
+        keep = np.r_[True, np.diff(t) > 1e-12]
+        out = pts.copy()
+        out[keep] = _smooth_curve(pts[keep], weights[keep])
+        return out
+    try:
+        return np.stack([make_smoothing_spline(t, pts[:, k], w=weights)(t) for k in range(3)], 1)
+    except (ValueError, np.linalg.LinAlgError):
+        return pts.copy()
+
+
+def _polyline_distance(q: np.ndarray, poly: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance of points q (M, 3) to a polyline (P, 3) and the (fractional) vertex index of the
+    closest point."""
+    from scipy.spatial import cKDTree
+
+    if len(poly) == 1:
+        return np.linalg.norm(q - poly[0], axis=1), np.zeros(len(q))
+    _, i = cKDTree(poly).query(q)
+    best_d = np.full(len(q), np.inf)
+    best_t = np.zeros(len(q))
+    for s in (i - 1, i):
+        s = np.clip(s, 0, len(poly) - 2)
+        a, b = poly[s], poly[s + 1]
+        ab = b - a
+        L2 = np.maximum((ab * ab).sum(1), 1e-30)
+        u = np.clip(((q - a) * ab).sum(1) / L2, 0, 1)
+        d = np.linalg.norm(q - (a + u[:, None] * ab), axis=1)
+        better = d < best_d
+        best_d[better], best_t[better] = d[better], (s + u)[better]
+    return best_d, best_t
+
+
+def _leonardo_prior(sk: Skeleton, root_r: float, pet_r: float) -> np.ndarray:
+    """(n,) prior cross-section area (r^2) per skeleton node from the tree rule (module doc)."""
+    kids = sk.children()
+    n = len(sk.pos)
+    d = np.zeros(n)
+    for u in range(1, n):
+        d[u] = d[sk.parent[u]] + float(np.linalg.norm(sk.pos[u] - sk.pos[sk.parent[u]]))
+    tips = np.zeros(n)
+    h = np.zeros(n)
+    for u in range(n - 1, -1, -1):
+        if not kids[u]:
+            tips[u] = 1
+        else:
+            tips[u] = sum(tips[c] for c in kids[u])
+            h[u] = max(h[c] + float(np.linalg.norm(sk.pos[c] - sk.pos[u])) for c in kids[u])
+    t = np.where(d + h > 0, d / np.maximum(d + h, 1e-30), 1.0)
+    s_root = root_r ** 2 / (max(tips[0], 1) * pet_r ** 2)
+    return (s_root + (1 - s_root) * t) * tips * pet_r ** 2
+
+
+def solve_areas(sk: Skeleton, observed: np.ndarray, weight: np.ndarray, prior: np.ndarray,
+                params: StemParams) -> np.ndarray:
+    """(n,) cross-section areas r^2: measured areas, smoothness and Leonardo's rule in one sparse
+    least-squares problem (module docstring, step 4). observed/weight : (n,) (weight 0 = none)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.linalg import spsolve
+
+    n = len(sk.pos)
+    kids = sk.children()
+    scale = np.maximum(np.where(weight > 0, observed, prior), 1e-10)
+    R, C, V, B = [], [], [], []
+    row = 0
+
+    def add(cols, vals, rhs, w, s):
+        nonlocal row
+        f = np.sqrt(w) / s
+        R.extend([row] * len(cols))
+        C.extend(cols)
+        V.extend([v * f for v in vals])
+        B.append(rhs * f)
+        row += 1
+
+    for u in range(n):
+        if weight[u] > 0:
+            add([u], [1.0], observed[u], weight[u], scale[u])
+        add([u], [1.0], prior[u], 1e-3, scale[u])  # keeps every node determined
+        ks = kids[u]
+        if len(ks) == 1:
+            add([u, ks[0]], [1.0, -1.0], 0.0, params.smooth_weight, max(scale[u], scale[ks[0]]))
+        elif len(ks) > 1:
+            add([u] + ks, [1.0] + [-1.0] * len(ks), 0.0, params.leonardo_weight * len(ks), scale[u])
+    A = coo_matrix((V, (R, C)), shape=(row, n)).tocsr()
+    b = np.asarray(B)
+    a = spsolve((A.T @ A).tocsc(), A.T @ b)
+    return np.maximum(np.asarray(a, np.float64), 0.0)
+
+
+# ---- tubes --------------------------------------------------------------------------------------
+def _rmf(axis: np.ndarray) -> np.ndarray:
+    """(P, 3) reference vectors of rotation-minimising frames along a polyline (double reflection)."""
+    P = len(axis)
+    tang = np.gradient(axis, axis=0) if P > 1 else np.array([[0, 0, 1.0]])
+    tang /= np.maximum(np.linalg.norm(tang, axis=1, keepdims=True), 1e-12)
+    t0 = tang[0]
+    ref = np.array([1.0, 0, 0]) if abs(t0[0]) < 0.9 else np.array([0, 1.0, 0])
+    r = ref - (ref @ t0) * t0
+    r /= np.linalg.norm(r)
+    out = np.zeros_like(axis)
+    out[0] = r
+    for i in range(P - 1):
+        v1 = axis[i + 1] - axis[i]
+        c1 = v1 @ v1
+        if c1 < 1e-24:
+            out[i + 1] = out[i]
+            continue
+        rl = out[i] - (2 / c1) * (v1 @ out[i]) * v1
+        tl = tang[i] - (2 / c1) * (v1 @ tang[i]) * v1
+        v2 = tang[i + 1] - tl
+        c2 = v2 @ v2
+        r2 = rl - (2 / c2) * (v2 @ rl) * v2 if c2 > 1e-24 else rl
+        r2 -= (r2 @ tang[i + 1]) * tang[i + 1]
+        out[i + 1] = r2 / max(np.linalg.norm(r2), 1e-12)
+    return out, tang
+
+
+def sweep(axis: np.ndarray, radii: np.ndarray, sides: int, cap_start: bool, tip: bool):
+    """Tube mesh along ``axis`` (P, 3) with ring radii (P,): rings of ``sides`` vertices, a flat
+    cap at the start when ``cap_start``, a closed point at the end when ``tip`` (the last ring
+    is replaced by the apex). Returns (verts (V, 3), faces (F, 3) int64), faces outward."""
+    P = len(axis)
+    ref, tang = _rmf(axis)
+    ang = np.linspace(0, 2 * np.pi, sides, endpoint=False)
+    ring_p = axis if not tip else axis[:-1]
+    R = len(ring_p)
+    u = ref[:R]
+    w = np.cross(tang[:R], u)
+    verts = (ring_p[:, None, :] + radii[:R, None, None] *
+             (np.cos(ang)[None, :, None] * u[:, None, :] + np.sin(ang)[None, :, None] * w[:, None, :]))
+    verts = verts.reshape(-1, 3)
+    j = np.arange(sides)
+    j2 = (j + 1) % sides
+    faces = []
+    for i in range(R - 1):
+        a, b = i * sides + j, i * sides + j2
+        faces.append(np.stack([a, b, b + sides], 1))
+        faces.append(np.stack([a, b + sides, a + sides], 1))
+    extra = []
+    nv = len(verts)
+    if tip and R >= 1:
+        extra.append(axis[-1])
+        last = (R - 1) * sides
+        faces.append(np.stack([last + j, last + j2, np.full(sides, nv)], 1))
+        nv += 1
+    if cap_start and R >= 1:
+        extra.append(axis[0])
+        faces.append(np.stack([np.full(sides, nv), j2, j], 1))
+        nv += 1
+    if extra:
+        verts = np.concatenate([verts, np.asarray(extra)])
+    F = np.concatenate(faces) if faces else np.zeros((0, 3), np.int64)
+    return verts, F.astype(np.int64)
+
+
+def _resample(axis: np.ndarray, radii: np.ndarray, spacing: np.ndarray, tip_len: float,
+              tip: bool):
+    """Ring positions along a fine axis: every ``spacing`` (per fine sample), plus a rounded tip
+    (radius r * sqrt(1 - x^2) over the last ``tip_len``). Returns (axis (R, 3), radii (R,))."""
+    seg = np.linalg.norm(np.diff(axis, axis=0), axis=1)
+    s = np.r_[0.0, np.cumsum(seg)]
+    total = float(s[-1])
+    if total <= 0:
+        return axis[:1].repeat(2, 0), radii[:1].repeat(2)
+    keep = [0.0]
+    while True:
+        i = int(np.searchsorted(s, keep[-1], side="right") - 1)
+        nxt = keep[-1] + float(spacing[min(i, len(spacing) - 1)])
+        if nxt >= total - 0.5 * float(spacing[-1]):
+            break
+        keep.append(nxt)
+    keep.append(total)
+    keep = np.asarray(keep)
+    if tip:
+        L = min(tip_len, 0.5 * total)
+        body = keep[keep < total - L]
+        x = np.array([0.0, 0.5, 0.8, 0.95, 1.0])
+        keep = np.unique(np.r_[body, total - L + L * x])
+    pts = np.stack([np.interp(keep, s, axis[:, k]) for k in range(3)], 1)
+    r = np.interp(keep, s, radii)
+    if tip:
+        L = min(tip_len, 0.5 * total)
+        x = np.clip((keep - (total - L)) / max(L, 1e-12), 0, 1)
+        r = r * np.sqrt(np.clip(1 - x ** 2, 0, 1))
+    return pts, r
+
+
+@dataclass
+class _Tube:
+    axis: np.ndarray      # (P, 3) fine axis samples
+    radii: np.ndarray     # (P,)
+    cap_start: bool
+    parent_tube: int
+    attach: np.ndarray    # (3,) where the tube leaves its parent (its first axis point)
+
+
+def _tubes(sk: Skeleton, areas: np.ndarray, points: np.ndarray, params: StemParams,
+           smoothed: dict | None = None) -> list[_Tube]:
+    w = float(params.level_width)
+    tubes: list[_Tube] = []
+    node_pos = {} if smoothed is None else smoothed
+    stream_of = {}
+    for si, chain in enumerate(streams(sk)):
+        pts = sk.pos[chain].copy()
+        wt = np.sqrt(np.maximum(sk.count[chain], 1)).astype(np.float64)
+        is_branch = si > 0
+        if is_branch:
+            pts[0] = node_pos.get(int(chain[0]), pts[0])
+            wt[0] = 1e3 * wt.max()
+        if len(pts) >= 2:
+            sm = _smooth_curve(pts, wt)
+        else:
+            sm = pts
+        if is_branch:
+            sm[0] = pts[0]
+        for k, u in enumerate(chain.tolist()):
+            if not (is_branch and k == 0):
+                node_pos[u] = sm[k]
+                stream_of[u] = si
+        node_r = np.sqrt(areas[chain])
+        # extend both ends to the extreme Gaussians of the end nodes (centroids lie inside)
+        if len(sk.members):
+            for end in ((0,) if not is_branch else ()) + (len(chain) - 1,):
+                u = chain[end]
+                mem = points[sk.members[sk.member_node == u]]
+                if len(mem) and len(sm) >= 2:
+                    d = sm[end] - sm[1 if end == 0 else -2]
+                    d /= max(np.linalg.norm(d), 1e-12)
+                    ext = float(np.clip(((mem - sm[end]) @ d).max(initial=0.0), 0.0, w))
+                    if ext > 1e-9:
+                        if end == 0:
+                            sm = np.concatenate([[sm[0] + ext * d], sm])
+                            node_r = np.r_[node_r[0], node_r]
+                        else:
+                            sm = np.concatenate([sm, [sm[-1] + ext * d]])
+                            node_r = np.r_[node_r, node_r[-1]]
+        if len(sm) < 2:
+            continue
+        # fine axis: cubic interpolation of the smoothed nodes
+        t = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(sm, axis=0), axis=1))]
+        good = np.r_[True, np.diff(t) > 1e-12]
+        sm, t, node_r = sm[good], t[good], node_r[good]
+        if len(sm) < 2:
+            continue
+        step = 0.2 * w
+        m = max(int(np.ceil(t[-1] / step)) + 1, 4)
+        tf = np.linspace(0, t[-1], m)
+        if len(sm) >= 4:
+            from scipy.interpolate import make_interp_spline
+            fine = make_interp_spline(t, sm, k=3)(tf)
+        else:
+            fine = np.stack([np.interp(tf, t, sm[:, k]) for k in range(3)], 1)
+        rf = np.interp(tf, t, node_r)
+        parent_tube = stream_of.get(int(chain[0]), -1) if is_branch else -1
+        tubes.append(_Tube(axis=fine, radii=rf, cap_start=not is_branch, parent_tube=parent_tube,
+                           attach=fine[0]))
+    return tubes
+
+
+def _observed_areas(sk: Skeleton, points: np.ndarray, params: StemParams):
+    """Per node: (observed area (n,), weight (n,)) from its Gaussians' distances to the smoothed
+    axis of its stream."""
+    n = len(sk.pos)
+    obs, wt = np.zeros(n), np.zeros(n)
+    if not len(sk.members):
+        return obs, wt
+    smoothed: dict = {}
+    tubes = _tubes(sk, np.full(n, 1e-6), points, params, smoothed)
+    mem_pos = points[sk.members]
+    chains = streams(sk)
+    for si, chain in enumerate(chains):
+        own = chain[1:] if si > 0 else chain
+        if si >= len(tubes):
+            continue
+        axis = tubes[si].axis
+        sel = np.isin(sk.member_node, own)
+        if not sel.any():
+            continue
+        d, _ = _polyline_distance(mem_pos[sel], axis)
+        nodes = sk.member_node[sel]
+        for u in np.unique(nodes):
+            du = d[nodes == u]
+            if len(du) >= 3:
+                obs[u] = float(np.median(du)) ** 2
+                wt[u] = len(du)
+    ref = np.median(wt[wt > 0]) if (wt > 0).any() else 1.0
+    return obs, np.minimum(wt / ref, 1.0)
+
+
+def _vertex_colors(verts: np.ndarray, src_pts: np.ndarray, src_col: np.ndarray, k: int = 8):
+    from scipy.spatial import cKDTree
+
+    if len(src_pts) == 0:
+        return None
+    k = min(k, len(src_pts))
+    d, j = cKDTree(src_pts).query(verts, k=k)
+    if k == 1:
+        return src_col[j]
+    w = 1.0 / np.maximum(d, 1e-9)
+    return (src_col[j] * w[..., None]).sum(1) / w.sum(1, keepdims=True)
+
+
+def _mesh(tubes: list[_Tube], sides: int, spacing_mult: float, params: StemParams):
+    """All tubes swept at one level of detail: (verts, faces, segments) with segments =
+    (starts, ends, r_start, r_end, parent) of the rings' axis."""
+    w = float(params.level_width)
+    V, F, nv = [], [], 0
+    starts, ends, r0, r1, par = [], [], [], [], []
+    first_seg, seg_range = [], []
+    for ti, tb in enumerate(tubes):
+        spacing = np.clip(float(params.ring_spacing) * tb.radii, 0.25 * w, 2.0 * w) * spacing_mult
+        ax, rr = _resample(tb.axis, tb.radii, spacing, float(params.tip_length) * float(tb.radii[-1]), True)
+        v, f = sweep(ax, rr, sides, tb.cap_start, True)
+        V.append(v)
+        F.append(f + nv)
+        nv += len(v)
+        s0 = len(starts)
+        for i in range(len(ax) - 1):
+            starts.append(ax[i])
+            ends.append(ax[i + 1])
+            r0.append(rr[i])
+            r1.append(rr[i + 1])
+            par.append(len(starts) - 2 if i > 0 else -1)
+        seg_range.append((s0, len(starts)))
+        first_seg.append(s0)
+    # a branch's first segment hangs from the parent tube's segment nearest its attachment
+    for ti, tb in enumerate(tubes):
+        if tb.parent_tube >= 0 and seg_range[ti][1] > seg_range[ti][0]:
+            a, b = seg_range[tb.parent_tube]
+            if b > a:
+                mids = 0.5 * (np.asarray(starts[a:b]) + np.asarray(ends[a:b]))
+                par[seg_range[ti][0]] = a + int(np.argmin(np.linalg.norm(mids - tb.attach, axis=1)))
+    verts = np.concatenate(V) if V else np.zeros((0, 3))
+    faces = np.concatenate(F) if F else np.zeros((0, 3), np.int64)
+    seg = (np.asarray(starts).reshape(-1, 3), np.asarray(ends).reshape(-1, 3), np.asarray(r0),
+           np.asarray(r1), np.asarray(par, np.int64))
+    return verts, faces, seg
+
+
+def _empty_stem() -> Stem:
+    return Stem(starts=np.zeros((0, 3), np.float32), ends=np.zeros((0, 3), np.float32),
+                radii_start=np.zeros(0, np.float32), radii_end=np.zeros(0, np.float32),
+                parent=np.zeros(0, np.int64), points=np.zeros((0, 3), np.float32),
+                faces=np.zeros((0, 3), np.int32))
+
+
+def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
+               colors=None) -> Stem:
+    """The stem as smooth swept tubes (module docstring).
+
+    seg : Segmentation (labels, root_index; tree_nodes, tree_parent, tree_leaf, leaf_base for the
+        tree skeleton and the radius prior)
     points_working : (N, 3) float, the Gaussians the segmentation ran on, working frame
     fits : LeafFits or None (unused by the geometry; accepted so callers pass the whole state)
-    Returns a ``Stem`` (working frame). A tree without stem edges gives an empty stem and a
-    warning; a single edge gives one tapered cylinder and a warning.
+    colors : (N, 3) float sRGB in [0, 1] of those Gaussians, or None (no vertex colours)
+    Returns a ``Stem`` (working frame) with LOD0 in points/faces/colors and the coarser levels
+    in ``lods``. No stem Gaussians and no stem edges give an empty stem and a warning.
     """
     params = params or StemParams()
     params.validate()
@@ -373,83 +892,70 @@ def build_stem(seg, points_working, fits=None, params: StemParams | None = None)
     if len(np.asarray(seg.tree_parent)) != len(nodes) or len(np.asarray(seg.tree_leaf)) != len(nodes):
         raise ParameterError("seg.tree_parent/tree_leaf", f"{len(nodes)} entries (one per tree node)",
                              f"{len(np.asarray(seg.tree_parent))}/{len(np.asarray(seg.tree_leaf))}")
-    root_r, pet_r = _resolve_radii(params, seg, pts_all, fits)
-    child, parent, r_p_end, r_c_end, n_tips, _, _ = leonardo_radii(seg, pts_all, root_r, pet_r)
-    n_tree_edges = len(child)
-    child, parent, r_p_end, r_c_end = simplify_chains(pts_all[nodes], child, parent, r_p_end,
-                                                      r_c_end, float(params.simplify))
-    if len(child) < n_tree_edges:
-        log.info("stem: %d tree edges -> %d cylinders (simplify=%g)", n_tree_edges, len(child),
-                 params.simplify)
-    empty = Stem(starts=np.zeros((0, 3), np.float32), ends=np.zeros((0, 3), np.float32),
-                 radii_start=np.zeros(0, np.float32), radii_end=np.zeros(0, np.float32),
-                 parent=np.zeros(0, np.int64), points=np.zeros((0, 3), np.float32),
-                 faces=np.zeros((0, 3), np.int32))
-    if len(child) == 0:
-        log.warning("stem: the segmentation tree has no stem edges; writing no stem")
-        return empty
-    if n_tree_edges == 1:
-        log.warning("stem: the segmentation tree has a single stem edge; the stem is one tapered cylinder")
-    tp = pts_all[nodes]
-    starts, ends = tp[parent], tp[child]
-    # parent cylinder of each edge: the edge whose child node is this edge's parent node
-    edge_of_child = np.full(len(nodes), -1, np.int64)
-    edge_of_child[child] = np.arange(len(child))
-    e_parent = edge_of_child[parent]
+    labels = np.asarray(seg.labels)
+    sk = None
+    kind = "tree"
+    if params.skeleton in ("auto", "gaussians") and len(labels) == len(pts_all):
+        sk = gaussian_skeleton(pts_all, labels, int(seg.root_index), params)
+        kind = "gaussians"
+        if sk is None or len(sk.pos) < 2:
+            sk = None
+            if params.skeleton == "gaussians":
+                log.warning("stem: too few stem Gaussians for a skeleton; using the segmentation tree")
+    if sk is None:
+        sk, kind = tree_skeleton(seg, pts_all), "tree"
+        if sk is not None and len(sk.pos) == 2:
+            log.warning("stem: the segmentation tree has a single stem edge; the stem is one tapered tube")
+    if sk is None or len(sk.pos) < 2:
+        log.warning("stem: the segmentation tree has no stem edges and no stem Gaussians; writing no stem")
+        return _empty_stem()
+    obs, wt = _observed_areas(sk, pts_all, params) if kind == "gaussians" else \
+        (np.zeros(len(sk.pos)), np.zeros(len(sk.pos)))
+    root_r, pet_r = params.root_radius, params.petiole_radius
+    if root_r is None or pet_r is None:
+        kids = sk.children()
+        tipn = [u for u in range(len(sk.pos)) if not kids[u]]
+        m_root = np.sqrt(obs[:3][wt[:3] > 0]) if (wt[:3] > 0).any() else None
+        m_tip = np.sqrt(obs[tipn][wt[tipn] > 0]) if (wt[tipn] > 0).any() else None
+        if root_r is None and m_root is not None and len(m_root):
+            root_r = float(np.median(m_root))
+        if pet_r is None and m_tip is not None and len(m_tip):
+            pet_r = float(np.median(m_tip))
+        if root_r is None or pet_r is None:
+            r_root, r_pet = _resolve_radii(StemParams(root_radius=root_r, petiole_radius=pet_r,
+                                                      estimate_ball=params.estimate_ball),
+                                           seg, pts_all, fits)
+            root_r, pet_r = r_root, r_pet
+    pet_r = min(pet_r, root_r)
+    prior = _leonardo_prior(sk, float(root_r), float(pet_r))
+    areas = solve_areas(sk, obs, wt, prior, params)
+    floor = (0.25 * pet_r) ** 2
+    areas = np.maximum(areas, floor)
+    tubes = _tubes(sk, areas, pts_all, params)
+    if not tubes:
+        log.warning("stem: no tube could be swept; writing no stem")
+        return _empty_stem()
+    # colour sources: the skeleton's Gaussians, or every stem-labelled one
+    src = sk.members if len(sk.members) else np.flatnonzero(labels == 0) if len(labels) == len(pts_all) \
+        else np.zeros(0, np.int64)
+    col = None if colors is None else np.asarray(colors, np.float64)
 
-    # ---- mesh: chains of unbranched edges -> tubes; spheres at junctions, roots and tips ----
-    kids: dict[int, list[int]] = {}
-    for e, p in enumerate(parent.tolist()):
-        kids.setdefault(p, []).append(e)
-    deg = np.zeros(len(nodes), np.int64)  # stem-graph degree
-    np.add.at(deg, child, 1)
-    np.add.at(deg, parent, 1)
-    sides, rings = int(params.sides), int(params.sphere_rings)
-    V, F, nv = [], [], 0
-    done = np.zeros(len(child), bool)
-    for e0 in range(len(child)):
-        # start a chain at an edge whose parent node is a key node (not a degree-2 pass-through)
-        if done[e0] or (deg[parent[e0]] == 2 and e_parent[e0] >= 0):
-            continue
-        chain = [e0]
-        while True:
-            c = child[chain[-1]]
-            nxt = kids.get(int(c), [])
-            if deg[c] == 2 and len(nxt) == 1:
-                chain.append(nxt[0])
-            else:
-                break
-        done[chain] = True
-        path = np.concatenate([[starts[chain[0]]], ends[chain]])
-        radii = np.concatenate([[r_p_end[chain[0]]], r_c_end[chain]])
-        v, f = _tube(path, radii, sides)
-        V.append(v)
-        F.append(f + nv)
-        nv += len(v)
-    # any edge not reached (cycles can't occur in a tree; safety for odd inputs)
-    for e in np.flatnonzero(~done):
-        v, f = _tube(np.stack([starts[e], ends[e]]), np.array([r_p_end[e], r_c_end[e]]), sides)
-        V.append(v)
-        F.append(f + nv)
-        nv += len(v)
-    # joint spheres: every stem-graph node that is not a degree-2 pass-through
-    node_r = np.zeros(len(nodes))
-    np.maximum.at(node_r, parent, r_p_end)
-    np.maximum.at(node_r, child, r_c_end)
-    for u in np.flatnonzero((deg > 0) & (deg != 2)):
-        v, f = _sphere(tp[u], node_r[u], sides, rings)
-        V.append(v)
-        F.append(f + nv)
-        nv += len(v)
-    # degree-2 nodes joining two chains that are not one chain (e.g. a forest root of degree 2)
-    for u in np.flatnonzero(deg == 2):
-        if edge_of_child[u] < 0:  # a root with two children: close it with a sphere
-            v, f = _sphere(tp[u], node_r[u], sides, rings)
-            V.append(v)
-            F.append(f + nv)
-            nv += len(v)
-    return Stem(starts=starts.astype(np.float32), ends=ends.astype(np.float32),
-                radii_start=r_p_end.astype(np.float32), radii_end=r_c_end.astype(np.float32),
-                parent=e_parent.astype(np.int64),
-                points=np.concatenate(V).astype(np.float32),
-                faces=np.concatenate(F).astype(np.int32))
+    def level(sides, mult):
+        v, f, segs = _mesh(tubes, sides, mult, params)
+        c = _vertex_colors(v, pts_all[src], col[src]) if col is not None and len(src) else None
+        return v, f, segs, c
+
+    v, f, (st, en, r0, r1, par), c = level(int(params.sides), 1.0)
+    lods = []
+    for sides, mult in LOD_LEVELS:
+        lv, lf, _, lc = level(min(int(sides), int(params.sides)), mult)
+        lods.append(StemMesh(points=lv.astype(np.float32), faces=lf.astype(np.int32),
+                             colors=None if lc is None else lc.astype(np.float32)))
+    log.info("stem: %s skeleton, %d nodes, %d tubes, %d vertices (LOD0)", kind, len(sk.pos),
+             len(tubes), len(v))
+    return Stem(starts=st.astype(np.float32), ends=en.astype(np.float32),
+                radii_start=r0.astype(np.float32), radii_end=r1.astype(np.float32),
+                parent=par, points=v.astype(np.float32), faces=f.astype(np.int32),
+                colors=None if c is None else c.astype(np.float32), lods=lods,
+                info=dict(skeleton=kind, nodes=int(len(sk.pos)), tubes=len(tubes),
+                          root_radius=float(root_r), petiole_radius=float(pet_r)))
