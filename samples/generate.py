@@ -206,6 +206,9 @@ class GroundTruth:
     scene_class : (N,) int8, file order, or None for a plant without surroundings: 0 plant
         (labels >= 0), 1 ground (table), 2 pot, 3 soil, 4 background, 5 floater (the
         ``leaffit_usd.isolate`` class codes); scene Gaussians have ``labels`` -2
+    stem_samples : (S, 3) float64, points drawn uniformly by area on the exact tube surfaces of
+        the stem, branches and petioles (what a stem mesh is scored against); empty in files
+        written before it existed
     """
 
     labels: np.ndarray
@@ -226,6 +229,7 @@ class GroundTruth:
     canonical_to_input: np.ndarray
     spec: str
     scene_class: np.ndarray | None = None
+    stem_samples: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
     @property
     def n_leaves(self) -> int:
@@ -249,7 +253,7 @@ class GroundTruth:
         return json.loads(self.spec)
 
 
-_OPTIONAL_GT = ("scene_class",)
+_OPTIONAL_GT = ("scene_class", "stem_samples")
 
 
 def save_plant(cloud: GaussianCloud, gt: GroundTruth, directory, name: str) -> tuple[Path, Path]:
@@ -896,6 +900,33 @@ def _sample_tube(axis: Axis, n: int, rng, colour, colour_end=None, jitter=0.0003
     return pos, np.stack([s_along, s_around, s_rad], 1), R, col, opa
 
 
+def _tube_surface_samples(axes: list[Axis], n: int, rng) -> np.ndarray:
+    """(n, 3) points uniformly by area on the exact surfaces of the tubes (canonical frame)."""
+    segs = []
+    for a in axes:
+        r_mid = 0.5 * (a.radius[1:] + a.radius[:-1])
+        segs.append((a, np.diff(a.s) * r_mid))
+    w = np.concatenate([x for _, x in segs])
+    ai = np.concatenate([np.full(len(x), i) for i, (_, x) in enumerate(segs)])
+    si = np.concatenate([np.arange(len(x)) for _, x in segs])
+    pick = rng.choice(len(w), size=n, p=w / w.sum())
+    u = rng.uniform(size=n)
+    ang = rng.uniform(0, 2 * np.pi, n)
+    out = np.zeros((n, 3))
+    for i, (a, _) in enumerate(segs):
+        m = ai[pick] == i
+        if not m.any():
+            continue
+        s_ = si[pick[m]]
+        p0, p1 = a.pts[s_], a.pts[s_ + 1]
+        c = p0 + u[m, None] * (p1 - p0)
+        r = a.radius[s_] + u[m] * (a.radius[s_ + 1] - a.radius[s_])
+        tan = (p1 - p0) / np.linalg.norm(p1 - p0, axis=1, keepdims=True)
+        e1, e2 = _tube_frames(tan)
+        out[m] = c + r[:, None] * (np.cos(ang[m])[:, None] * e1 + np.sin(ang[m])[:, None] * e2)
+    return out
+
+
 def _random_rotation(rng) -> np.ndarray:
     q = rng.normal(0, 1, 4)
     q /= np.linalg.norm(q)
@@ -1106,6 +1137,7 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
         overlap_gaps=np.array([_min_dist(leaves[b - 1].world(), cKDTree(leaves[a - 1].world())) * sg * k
                                for a, b, _ in pairs], np.float64),
         canonical_to_input=M,
+        stem_samples=to_in(_tube_surface_samples(axes, 20000, np.random.default_rng([int(seed), 0x57E3]))),
         spec=json.dumps({"spec": spec.to_dict(), "seed": int(seed), "habit": habit,
                          "canonical_height_m": height / sg, "leaves": info,
                          **({"scene": scene_info} if scene_info is not None else {})}),

@@ -15,7 +15,7 @@ Generation", extended).
    parent, no sphere lumps).
 3. **Smoothing.** Each stream's node centroids (weighted by their Gaussian counts) are
    smoothed by a cubic smoothing spline per coordinate against arc length
-   (``scipy.interpolate.make_smoothing_spline``, smoothing by generalised cross-validation),
+   (``scipy.interpolate.make_smoothing_spline``, cut-off ``axis_smoothing`` level widths),
    then resampled with rings every ``ring_spacing`` local radii.
 4. **Radii.** Each node's observed radius is the median distance of its Gaussians to the smooth
    axis. Cross-section areas ``a = r^2`` are then solved in one sparse least-squares problem:
@@ -24,8 +24,8 @@ Generation", extended).
    junction, weight ``leonardo_weight``); a node without data takes the Leonardo/tapering prior
    of the tree (module functions :func:`leonardo_radii`, below). Rows are relative (divided by
    the local area), so thin petioles weigh as much as the trunk.
-5. **Tubes.** Rings of ``sides`` vertices, rotation-minimising frames (double reflection), a
-   flat cap at the root, and a tapered, closed tip at the end of every stream (a petiole at
+5. **Tubes.** Rings of ``sides`` vertices, rotation-minimising frames (double reflection), an
+   open base (``root_cap`` closes it), and a tapered, closed tip at the end of every stream (a petiole at
    its leaf base): the radius rounds off to a point over ``tip_length`` radii.
 6. **Colour.** Every vertex takes the mean colour of its nearest stem Gaussians (vertex colours,
    sRGB in [0, 1]; the writer converts to linear ``displayColor``).
@@ -70,12 +70,16 @@ class StemParams:
     neighbours : k of the stem Gaussians' neighbour graph
     min_gaussians : fewest stem Gaussians for the Gaussian skeleton
     prune : terminal spurs shorter than ``prune`` x level_width are dropped
+    base_level_ratio : level sets are at least this x the base's radius wide
+    axis_smoothing : the axis spline smooths out wiggles shorter than this x level_width
     leonardo_weight : weight of Leonardo's rule against the measured radii (relative rows)
     smooth_weight : weight of the radius smoothness along a stream
     sides : vertices per ring (LOD0)
     ring_spacing : ring spacing along the axis, multiple of the local radius (clamped to
         [0.25, 2] x level_width)
     tip_length : length of the rounded tip, multiple of the tip radius
+    root_cap : close the base with a flat disk (off by default: a potted plant's stem goes into
+        the soil, and a disk as wide as a thick base sticks out of the true surface)
     estimate_ball : radius of the neighbourhood used by the tree prior's estimates
     """
 
@@ -85,12 +89,15 @@ class StemParams:
     level_width: float = 0.01
     neighbours: int = 10
     min_gaussians: int = 60
-    prune: float = 2.0
+    prune: float = 0.5
+    axis_smoothing: float = 1.0
+    base_level_ratio: float = 0.75
     leonardo_weight: float = 1.0
     smooth_weight: float = 1.0
     sides: int = 12
     ring_spacing: float = 1.0
     tip_length: float = 1.5
+    root_cap: bool = False
     estimate_ball: float = 0.05
 
     def validate(self) -> None:
@@ -108,7 +115,7 @@ class StemParams:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ParameterError(name, "a positive number", v)
-        for name in ("prune", "leonardo_weight", "smooth_weight", "tip_length"):
+        for name in ("prune", "axis_smoothing", "base_level_ratio", "leonardo_weight", "smooth_weight", "tip_length"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ParameterError(name, "a number >= 0", v)
@@ -359,13 +366,25 @@ def gaussian_skeleton(points: np.ndarray, labels: np.ndarray, root_index: int,
         others.remove(c)
     G = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                    shape=(M, M)).tocsr()
-    g = dijkstra(G, directed=False, indices=r0)
+    # sources: the root's piece of the lowest slab (the base's whole ring, not one point on it:
+    # geodesic level sets from a point on a thick stem's surface would be arcs, not rings)
+    w = float(params.level_width)
+    Gc = G.tocoo()
+    slab = P[:, 2] <= P[r0, 2] + w
+    in_slab = slab[Gc.row] & slab[Gc.col]
+    _, slab_lab = connected_components(coo_matrix((np.ones(int(in_slab.sum())),
+                                                   (Gc.row[in_slab], Gc.col[in_slab])), shape=(M, M)),
+                                       directed=False)
+    sources = np.flatnonzero(slab & (slab_lab == slab_lab[r0]))
+    ring = P[sources, :2]
+    base_r = float(np.median(np.linalg.norm(ring - ring.mean(0), axis=1))) if len(sources) > 3 else 0.0
+    # level sets no thinner than the base is wide: thin slabs of a thick stem break into arcs
+    w = max(w, float(params.base_level_ratio) * base_r)
+    g = dijkstra(G, directed=False, indices=sources, min_only=True)
     ok = np.isfinite(g)
     if ok.sum() < max(int(params.min_gaussians), 4):
         return None
-    w = float(params.level_width)
     level = np.where(ok, np.floor(np.where(ok, g, 0) / w), -1).astype(np.int64)
-    Gc = G.tocoo()
     e_i, e_j = Gc.row, Gc.col
     same = (level[e_i] == level[e_j]) & ok[e_i] & ok[e_j]
     _, lab = connected_components(coo_matrix((np.ones(int(same.sum())), (e_i[same], e_j[same])),
@@ -421,11 +440,22 @@ def _reroot(sk: Skeleton, root: int) -> Skeleton:
                     members=sk.members[mem], member_node=new[sk.member_node[mem]])
 
 
-def prune_spurs(sk: Skeleton, min_length: float) -> Skeleton:
+def prune_spurs(sk: Skeleton, min_length: float, min_count: int = 8) -> Skeleton:
     """Drop terminal chains (tip up to, not including, the first junction) shorter than
-    ``min_length``; their Gaussians go to the junction node."""
-    if min_length <= 0 or len(sk.pos) < 3:
+    ``min_length`` or, on a measured skeleton, made of fewer than ``min_count`` Gaussians (a
+    level-set piece of a few stray Gaussians is not a branch); their Gaussians go to the
+    junction node. Repeated until nothing changes."""
+    if len(sk.pos) < 3:
         return sk
+    measured = bool(sk.count.any())
+    while True:
+        nxt = _prune_once(sk, min_length, min_count, measured)
+        if len(nxt.pos) == len(sk.pos):
+            return nxt
+        sk = nxt
+
+
+def _prune_once(sk: Skeleton, min_length: float, min_count: int, measured: bool) -> Skeleton:
     kids = sk.children()
     keep = np.ones(len(sk.pos), bool)
     target = np.arange(len(sk.pos))
@@ -439,7 +469,8 @@ def prune_spurs(sk: Skeleton, min_length: float) -> Skeleton:
         if j < 0 or len(kids[j]) < 2:
             continue  # the chain reaches the root: the whole skeleton, keep it
         length += float(np.linalg.norm(sk.pos[u] - sk.pos[j]))
-        if length < min_length:
+        few = measured and int(sk.count[chain].sum()) < min_count
+        if length < min_length or few:
             keep[chain] = False
             target[chain] = j
     if keep.all():
@@ -512,9 +543,11 @@ def streams(sk: Skeleton) -> list[np.ndarray]:
     return out
 
 
-def _smooth_curve(pts: np.ndarray, weights: np.ndarray) -> np.ndarray:
+def _smooth_curve(pts: np.ndarray, weights: np.ndarray, scale: float | None = None) -> np.ndarray:
     """Smoothed copy of a polyline (P, 3): a cubic smoothing spline per coordinate against chord
-    length, smoothing chosen by generalised cross-validation; weights (P,) (large = keep)."""
+    length (``scipy.interpolate.make_smoothing_spline``), weights (P,) (large = keep); ``scale``
+    is the length below which wiggles are smoothed out (None: chosen by generalised
+    cross-validation, ~10x slower)."""
     from scipy.interpolate import make_smoothing_spline
 
     P = len(pts)
@@ -524,10 +557,12 @@ def _smooth_curve(pts: np.ndarray, weights: np.ndarray) -> np.ndarray:
     if not (np.diff(t) > 1e-12).all():
         keep = np.r_[True, np.diff(t) > 1e-12]
         out = pts.copy()
-        out[keep] = _smooth_curve(pts[keep], weights[keep])
+        out[keep] = _smooth_curve(pts[keep], weights[keep], scale)
         return out
+    # lam sets the spline's cut-off length ~ scale (None: generalised cross-validation, slow)
+    lam = None if scale is None else float(np.mean(weights)) * float(scale) ** 4
     try:
-        return np.stack([make_smoothing_spline(t, pts[:, k], w=weights)(t) for k in range(3)], 1)
+        return np.stack([make_smoothing_spline(t, pts[:, k], w=weights, lam=lam)(t) for k in range(3)], 1)
     except (ValueError, np.linalg.LinAlgError):
         return pts.copy()
 
@@ -732,7 +767,7 @@ def _tubes(sk: Skeleton, areas: np.ndarray, points: np.ndarray, params: StemPara
             pts[0] = node_pos.get(int(chain[0]), pts[0])
             wt[0] = 1e3 * wt.max()
         if len(pts) >= 2:
-            sm = _smooth_curve(pts, wt)
+            sm = _smooth_curve(pts, wt, float(params.axis_smoothing) * w)
         else:
             sm = pts
         if is_branch:
@@ -742,22 +777,15 @@ def _tubes(sk: Skeleton, areas: np.ndarray, points: np.ndarray, params: StemPara
                 node_pos[u] = sm[k]
                 stream_of[u] = si
         node_r = np.sqrt(areas[chain])
-        # extend both ends to the extreme Gaussians of the end nodes (centroids lie inside)
-        if len(sk.members):
-            for end in ((0,) if not is_branch else ()) + (len(chain) - 1,):
-                u = chain[end]
-                mem = points[sk.members[sk.member_node == u]]
-                if len(mem) and len(sm) >= 2:
-                    d = sm[end] - sm[1 if end == 0 else -2]
-                    d /= max(np.linalg.norm(d), 1e-12)
-                    ext = float(np.clip(((mem - sm[end]) @ d).max(initial=0.0), 0.0, w))
-                    if ext > 1e-9:
-                        if end == 0:
-                            sm = np.concatenate([[sm[0] + ext * d], sm])
-                            node_r = np.r_[node_r[0], node_r]
-                        else:
-                            sm = np.concatenate([sm, [sm[-1] + ext * d]])
-                            node_r = np.r_[node_r, node_r[-1]]
+        if not is_branch and len(sk.members) and len(sm) >= 2:
+            # the root node's centroid lies inside the base: reach down to its lowest Gaussians
+            mem = points[sk.members[sk.member_node == chain[0]]]
+            d = sm[0] - sm[1]
+            d /= max(np.linalg.norm(d), 1e-12)
+            ext = float(np.clip(((mem - sm[0]) @ d).max(initial=0.0), 0.0, w))
+            if ext > 1e-9:
+                sm = np.concatenate([[sm[0] + ext * d], sm])
+                node_r = np.r_[node_r[0], node_r]
         if len(sm) < 2:
             continue
         # fine axis: cubic interpolation of the smoothed nodes
@@ -834,7 +862,7 @@ def _mesh(tubes: list[_Tube], sides: int, spacing_mult: float, params: StemParam
     for ti, tb in enumerate(tubes):
         spacing = np.clip(float(params.ring_spacing) * tb.radii, 0.25 * w, 2.0 * w) * spacing_mult
         ax, rr = _resample(tb.axis, tb.radii, spacing, float(params.tip_length) * float(tb.radii[-1]), True)
-        v, f = sweep(ax, rr, sides, tb.cap_start, True)
+        v, f = sweep(ax, rr, sides, tb.cap_start and bool(params.root_cap), True)
         V.append(v)
         F.append(f + nv)
         nv += len(v)
