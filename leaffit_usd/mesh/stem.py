@@ -71,7 +71,8 @@ class StemParams:
     min_gaussians : fewest stem Gaussians for the Gaussian skeleton
     prune : terminal spurs shorter than ``prune`` x level_width are dropped
     base_level_ratio : level sets are at least this x the base's radius wide
-    axis_smoothing : the axis spline smooths out wiggles shorter than this x level_width
+    axis_smoothing : the axis spline smooths out wiggles shorter than about 2 pi x this x
+        level_width
     leonardo_weight : weight of Leonardo's rule against the measured radii (relative rows)
     smooth_weight : weight of the radius smoothness along a stream
     sides : vertices per ring (LOD0)
@@ -90,7 +91,7 @@ class StemParams:
     neighbours: int = 10
     min_gaussians: int = 60
     prune: float = 0.5
-    axis_smoothing: float = 1.0
+    axis_smoothing: float = 0.5
     base_level_ratio: float = 0.75
     leonardo_weight: float = 1.0
     smooth_weight: float = 1.0
@@ -289,6 +290,8 @@ class Skeleton:
     pos : (n, 3) float64 node positions; parent : (n,) int64, -1 at the root (node 0)
     count : (n,) int64, Gaussians measured at each node (0 = no data: tree skeleton)
     members : (M,) int64 point indices that make up the nodes; member_node : (M,) their node
+    spread : (n,) float64, median distance of a node's Gaussians to its centroid (~ the local
+        radius; 0 without data)
     """
 
     pos: np.ndarray
@@ -296,6 +299,11 @@ class Skeleton:
     count: np.ndarray
     members: np.ndarray
     member_node: np.ndarray
+    spread: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.spread is None:
+            self.spread = np.zeros(len(self.pos))
 
     def children(self) -> list[list[int]]:
         kids: list[list[int]] = [[] for _ in range(len(self.pos))]
@@ -417,8 +425,12 @@ def gaussian_skeleton(points: np.ndarray, labels: np.ndarray, root_index: int,
     for u in np.flatnonzero((parent < 0) & (np.arange(n) != root)):  # touches no lower piece
         lower = np.flatnonzero(node_level < node_level[u])
         parent[u] = lower[np.argmin(np.linalg.norm(pos[lower] - pos[u], axis=1))] if len(lower) else root
+    dist = np.linalg.norm(P[pts_ok] - pos[lab], axis=1)
+    order = np.lexsort((dist, lab))
+    starts = np.searchsorted(lab[order], np.arange(n))
+    spread = dist[order][np.minimum(starts + count // 2, len(order) - 1)]
     sk = Skeleton(pos=pos, parent=parent, count=count.astype(np.int64),
-                  members=idx[pts_ok], member_node=lab.astype(np.int64))
+                  members=idx[pts_ok], member_node=lab.astype(np.int64), spread=spread)
     sk = _reroot(sk, root)
     return prune_spurs(sk, float(params.prune) * w)
 
@@ -437,7 +449,8 @@ def _reroot(sk: Skeleton, root: int) -> Skeleton:
     par[0] = -1
     mem = new[sk.member_node] >= 0
     return Skeleton(pos=sk.pos[order], parent=par, count=sk.count[order],
-                    members=sk.members[mem], member_node=new[sk.member_node[mem]])
+                    members=sk.members[mem], member_node=new[sk.member_node[mem]],
+                    spread=sk.spread[order])
 
 
 def prune_spurs(sk: Skeleton, min_length: float, min_count: int = 8) -> Skeleton:
@@ -470,7 +483,8 @@ def _prune_once(sk: Skeleton, min_length: float, min_count: int, measured: bool)
             continue  # the chain reaches the root: the whole skeleton, keep it
         length += float(np.linalg.norm(sk.pos[u] - sk.pos[j]))
         few = measured and int(sk.count[chain].sum()) < min_count
-        if length < min_length or few:
+        # a stub no longer than the junction is wide is a piece of the junction's own surface
+        if length < max(min_length, float(sk.spread[j])) or few:
             keep[chain] = False
             target[chain] = j
     if keep.all():
@@ -481,7 +495,7 @@ def _prune_once(sk: Skeleton, min_length: float, min_count: int, measured: bool)
     par = np.where(par >= 0, new[np.maximum(par, 0)], -1)
     cnt = np.bincount(new[target], weights=sk.count, minlength=int(keep.sum())).astype(np.int64)
     return Skeleton(pos=sk.pos[keep], parent=par, count=cnt, members=sk.members,
-                    member_node=new[target[sk.member_node]])
+                    member_node=new[target[sk.member_node]], spread=sk.spread[keep])
 
 
 def tree_skeleton(seg, points: np.ndarray) -> Skeleton | None:
@@ -559,8 +573,10 @@ def _smooth_curve(pts: np.ndarray, weights: np.ndarray, scale: float | None = No
         out = pts.copy()
         out[keep] = _smooth_curve(pts[keep], weights[keep], scale)
         return out
-    # lam sets the spline's cut-off length ~ scale (None: generalised cross-validation, slow)
-    lam = None if scale is None else float(np.mean(weights)) * float(scale) ** 4
+    # penalty lam * int f''^2 against sum w (y - f)^2 over points h apart: wiggles shorter than
+    # about 2 pi * scale are smoothed out (None: generalised cross-validation, slow)
+    h = float(t[-1]) / (P - 1)
+    lam = None if scale is None else float(np.mean(weights)) / max(h, 1e-12) * float(scale) ** 4
     try:
         return np.stack([make_smoothing_spline(t, pts[:, k], w=weights, lam=lam)(t) for k in range(3)], 1)
     except (ValueError, np.linalg.LinAlgError):
@@ -956,7 +972,8 @@ def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
             root_r, pet_r = r_root, r_pet
     pet_r = min(pet_r, root_r)
     prior = _leonardo_prior(sk, float(root_r), float(pet_r))
-    areas = solve_areas(sk, obs, wt, prior, params)
+    # nothing measured (tree skeleton): the prior is the whole answer
+    areas = solve_areas(sk, obs, wt, prior, params) if (wt > 0).any() else prior
     floor = (0.25 * pet_r) ** 2
     areas = np.maximum(areas, floor)
     tubes = _tubes(sk, areas, pts_all, params)

@@ -175,3 +175,56 @@ def synthetic_tree(n_branches: int = 3, leaves_per_branch: int = 2, seed: int = 
                        tree_parent=np.asarray(parent, np.int64),
                        tree_leaf=np.asarray(leaf, np.int32))
     return seg, allp
+
+
+STEM_RGB = (0.30, 0.45, 0.12)
+BRANCH_RGB = (0.70, 0.15, 0.10)
+
+
+def synthetic_stem_plant(n: int = 6000, seed: int = 0):
+    """A Y-shaped stem captured as surface Gaussians: a gently curved main stem (radius 0.012
+    tapering to 0.006, 0.8 tall) and a side branch leaving it at z = 0.35 (radius 0.005, red),
+    plus 10 floaters far off and a small blade (label 1) at the branch's end.
+
+    Returns (seg, points (N, 3), colors (N, 3), tubes) where tubes is a list of
+    (axis (K, 3), radius (K,)) with the exact centrelines; working frame, root at the origin.
+    """
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 1, 200)
+    main = np.stack([0.03 * np.sin(2.5 * t), 0.02 * t ** 2, 0.8 * t], 1)
+    r_main = 0.012 - 0.006 * t
+    j = int(np.searchsorted(main[:, 2], 0.35))
+    d = np.array([0.8, 0.0, 0.6])
+    d /= np.linalg.norm(d)
+    tb = np.linspace(0, 1, 120)
+    branch = main[j] + 0.3 * tb[:, None] * d + np.stack([0 * tb, 0.03 * np.sin(np.pi * tb), 0.05 * tb ** 2], 1)
+    r_branch = np.full(len(tb), 0.005)
+    tubes = [(main, r_main), (branch, r_branch)]
+    pts, cols = [], []
+    lengths = [float(np.linalg.norm(np.diff(a, axis=0), axis=1).sum() * r.mean()) for a, r in tubes]
+    for (a, r), L, rgb in zip(tubes, lengths, (STEM_RGB, BRANCH_RGB)):
+        m = int(n * L / sum(lengths))
+        i = rng.integers(0, len(a) - 1, m)
+        u = rng.random(m)
+        c = a[i] + u[:, None] * (a[i + 1] - a[i])
+        tan = a[i + 1] - a[i]
+        tan /= np.linalg.norm(tan, axis=1, keepdims=True)
+        e1 = np.cross(tan, [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+        e2 = np.cross(tan, e1)
+        ang = rng.uniform(0, 2 * np.pi, m)
+        rr = r[i] + u * (r[np.minimum(i + 1, len(r) - 1)] - r[i])
+        pts.append(c + (rr + rng.normal(0, 0.0004, m))[:, None] * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2))
+        cols.append(np.clip(np.asarray(rgb) + rng.normal(0, 0.02, (m, 3)), 0, 1))
+    # a small blade beyond the branch's end (label 1) and floaters far off (label 0)
+    tip = branch[-1]
+    blade = tip + d * 0.01 + rng.uniform(-1, 1, (300, 3)) * [0.05, 0.03, 0.002] + [0.05, 0, 0]
+    floaters = rng.uniform(-1, 1, (10, 3)) * 0.1 + [0.4, 0.4, 0.9]
+    P = np.concatenate(pts + [blade, floaters])
+    C = np.concatenate(cols + [np.tile([0.2, 0.6, 0.2], (300, 1)), np.tile([0.9, 0.9, 0.9], (10, 1))])
+    n_stem = sum(len(p) for p in pts)
+    labels = np.zeros(len(P), np.int32)
+    labels[n_stem:n_stem + 300] = 1
+    root = int(np.argmin(np.linalg.norm(P[:n_stem] - main[0], axis=1)))
+    seg = Segmentation(labels=labels, root_index=root)
+    return seg, P, C, tubes
