@@ -287,7 +287,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     with T.stage("mesh", "building the template mesh and textures"):
         template = build_template_mesh(cw, fits, mesh_p)
     with T.stage("stem", "building the stem"):
-        stem = build_stem(seg, pts, fits, stem_p)
+        stem = build_stem(seg, pts, fits, stem_p, colors=cw.colors)
     params = {
         "segment": {**_to_dict(seg_p), "labels_file": None if o.labels is None else str(o.labels)},
         "edits": None if o.edits is None else str(o.edits),

@@ -22,6 +22,15 @@ def save_value(value, path) -> None:
         v = getattr(value, f.name)
         if isinstance(v, np.ndarray):
             arrays[f.name] = v
+        elif isinstance(v, list) and v and all(dataclasses.is_dataclass(x) for x in v):
+            # a list of dataclass values (levels of detail): arrays under NAME__i__FIELD
+            cls = type(v[0])
+            plain[f.name] = {"__list_of__": f"{cls.__module__}:{cls.__qualname__}", "n": len(v)}
+            for i, x in enumerate(v):
+                for g in dataclasses.fields(x):
+                    item = getattr(x, g.name)
+                    if item is not None:
+                        arrays[f"{f.name}__{i}__{g.name}"] = np.asarray(item)
         else:
             plain[f.name] = v
     with atomic_path(path) as tmp:
@@ -35,6 +44,17 @@ def load_value(cls, path):
         plain = json.loads(str(z["__json__"])) if "__json__" in z else {}
         arrays = {k: z[k] for k in z.files if k != "__json__"}
     names = {f.name for f in dataclasses.fields(cls)}
+    for k, v in list(plain.items()):
+        if isinstance(v, dict) and "__list_of__" in v:
+            import importlib
+
+            mod, qual = v["__list_of__"].split(":")
+            item_cls = getattr(importlib.import_module(mod), qual)
+            plain[k] = [item_cls(**{g.name: arrays.get(f"{k}__{i}__{g.name}")
+                                    for g in dataclasses.fields(item_cls)
+                                    if f"{k}__{i}__{g.name}" in arrays})
+                        for i in range(int(v["n"]))]
+    arrays = {k: a for k, a in arrays.items() if "__" not in k}
     return cls(**{k: v for k, v in {**plain, **arrays}.items() if k in names})
 
 

@@ -19,6 +19,7 @@ class TemplateMesh:
     front_texture, back_texture : (H, W, 4) uint8 RGBA images (straight alpha), row 0 = top (v = 1)
     sheet_points, sheet_faces : the single-sheet mesh before duplication ((S, 3), (G, 3))
     report : quality figures (counts, distances, holes, coverage)
+    lods : coarser levels of detail (LOD1, LOD2, ...), each a :class:`TemplateLOD`
 
     UV convention: each side has its own texture; ``uvs`` of front vertices index
     ``front_texture`` and of back vertices ``back_texture``. USD's st has v up, so texel row
@@ -35,6 +36,19 @@ class TemplateMesh:
     sheet_points: np.ndarray
     sheet_faces: np.ndarray
     report: dict = field(default_factory=dict)
+    lods: list = field(default_factory=list)
+
+
+@dataclass
+class TemplateLOD:
+    """A coarser level of detail of the two-sided template (same frame, layout and textures as
+    :class:`TemplateMesh`): points (V, 3), faces (F, 3), normals (V, 3), uvs (V, 2), side (V,)."""
+
+    points: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray
+    uvs: np.ndarray
+    side: np.ndarray
 
 
 @dataclass

@@ -55,7 +55,7 @@ from leaffit_usd.geometry.normals import vertex_normals
 from leaffit_usd.image_io import write_image
 from leaffit_usd.geometry.sampling import farthest_point_sampling
 from leaffit_usd.mesh import surface as surf
-from leaffit_usd.mesh.result import TemplateMesh
+from leaffit_usd.mesh.result import TemplateLOD, TemplateMesh
 
 log = logging.getLogger("leaffit_usd")
 
@@ -75,7 +75,14 @@ class MeshParams:
         nothing usable) or "planar"
     bpa_radii : ball radii, multiples of the samples' median nearest-neighbour spacing
     alpha : planar method's alpha-shape circumradius, multiple of the same spacing
-    texture_margin : empty border around the leaf in the texture, fraction of its larger extent
+    texture_margin : empty border around the leaf in the texture, fraction of its extent
+    uv_layout : "fit" (the chart's bounding box fills the square texture: texels follow the
+        leaf's aspect ratio) or "square" (square texels, the leaf's larger extent spans it)
+    supersample : the bake renders at this many times the texture size per axis and
+        box-filters down (premultiplied), then divides by the accumulated alpha
+    clean_outline : re-triangulate the sheet inside a smooth outline curve (constrained
+        Delaunay, :func:`surface.remesh_sheet`); the fine serration stays in the alpha cut-out
+    lod_vertices : vertex budgets of the coarser levels of detail (per side)
     alpha_threshold : splat coverage at which the cut-out edge lies
     min_coverage : smallest fraction of the sheet's silhouette a side's splats must cover
     """
@@ -85,7 +92,11 @@ class MeshParams:
     method: str = "auto"
     bpa_radii: tuple = (2.0, 3.0, 4.0)
     alpha: float = 2.5
-    texture_margin: float = 0.03
+    texture_margin: float = 0.01
+    uv_layout: str = "fit"
+    supersample: int = 2
+    clean_outline: bool = True
+    lod_vertices: tuple = (512, 128)
     alpha_threshold: float = 0.5
     min_coverage: float = 0.6
 
@@ -99,6 +110,12 @@ class MeshParams:
         radii = tuple(self.bpa_radii)
         if not radii or not all(np.isfinite(r) and r > 0 for r in radii):
             raise ParameterError("bpa_radii", "positive multiples of the sample spacing", self.bpa_radii)
+        if self.uv_layout not in ("fit", "square"):
+            raise ParameterError("uv_layout", "fit or square", self.uv_layout)
+        if not isinstance(self.supersample, (int, np.integer)) or not 1 <= self.supersample <= 4:
+            raise ParameterError("supersample", "an integer in 1..4", self.supersample)
+        if not all(isinstance(n, (int, np.integer)) and n >= 8 for n in tuple(self.lod_vertices)):
+            raise ParameterError("lod_vertices", "integers >= 8", self.lod_vertices)
         for name, lo, hi in (("alpha", 0.5, 100.0), ("texture_margin", 0.0, 0.45),
                              ("alpha_threshold", 0.01, 0.99), ("min_coverage", 0.0, 1.0)):
             v = getattr(self, name)
@@ -189,6 +206,23 @@ def uv_bounds(xy: np.ndarray, size: int, margin: float) -> tuple[float, float, f
     from leaffit_usd.splats.render import fit_bounds
 
     return fit_bounds(xy, size, size, margin)
+
+
+def chart_bounds(xy: np.ndarray, margin: float, size: int = 0) -> tuple[float, float, float, float]:
+    """Aspect-fitted bounds (xmin, xmax, ymin, ymax): the bounding box of ``xy`` (S, 2) grown by
+    ``margin`` of its own extent on each axis; mapped onto the whole square texture, so the
+    leaf fills it whatever its aspect ratio (texels are then rectangles on the leaf). With
+    ``size`` (texels), the margin is at least 5 texels (the cut-out's soft rim stays off the
+    border: an empty border for clamped lookups)."""
+    if size:
+        margin = max(margin, 5.0 / size)
+    m = np.asarray(xy, np.float64)[:, :2]
+    if len(m) == 0:
+        return (-1.0, 1.0, -1.0, 1.0)
+    lo, hi = m.min(0), m.max(0)
+    ext = np.maximum(hi - lo, 1e-9)
+    lo, hi = lo - margin * ext, hi + margin * ext
+    return (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))
 
 
 def planar_uvs(xy: np.ndarray, bounds) -> np.ndarray:
@@ -317,7 +351,7 @@ def signed_sheet_offset(points: np.ndarray, verts: np.ndarray, faces: np.ndarray
 
 def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np.ndarray,
                   outline_xy: np.ndarray, bounds, size: int, thr: float = 0.5,
-                  min_coverage: float = 0.6):
+                  min_coverage: float = 0.6, supersample: int = 1):
     """Front and back RGBA float textures (H, W, 4) in [0, 1], straight alpha, row 0 = top.
 
     sheet_points, sheet_faces : the sheet (template frame, CCW from +Z). A capture of a leaf holds
@@ -345,14 +379,22 @@ def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np
     info["front_gaussians"] = int((off >= 0).sum())
     info["back_gaussians"] = int((off < 0).sum())
 
+    ss = max(int(supersample), 1)
+
     def render(sel, from_below):
+        """Premultiplied colour (H, W, 3) and alpha (H, W), rendered ss x ss per texel and
+        box-filtered (the average of premultiplied samples: dividing by the averaged alpha
+        later gives the coverage-weighted colour, true to the input at the rim)."""
         sel = np.flatnonzero(sel)
         if len(sel) == 0:
             z = np.zeros((size, size))
             return z[..., None].repeat(3, -1), z
-        r = render_orthographic_np(means[sel], cov[sel], colors[sel], opac[sel], size, size, bounds,
+        n = size * ss
+        r = render_orthographic_np(means[sel], cov[sel], colors[sel], opac[sel], n, n, bounds,
                                    from_below=from_below)
-        return np.asarray(r.color, np.float64), np.asarray(r.alpha, np.float64)
+        c = np.asarray(r.color, np.float64).reshape(size, ss, size, ss, 3).mean((1, 3))
+        a = np.asarray(r.alpha, np.float64).reshape(size, ss, size, ss).mean((1, 3))
+        return c, a
 
     def side(own_sel, from_below):
         """The side's own layer composited over the other layer (premultiplied 'over')."""
@@ -421,37 +463,84 @@ def build_template_mesh(cloud_working, fits, params: MeshParams | None = None) -
     t0 = time.perf_counter()
     sheet, checks = build_sheet(samples, params)
     timings["surface"] = time.perf_counter() - t0
+    rim_sheet = sheet
+    t0 = time.perf_counter()
+    if params.clean_outline and len(sheet.faces):
+        clean = surf.remesh_sheet(sheet.points, sheet.faces, len(sheet.points))
+        if clean is None:
+            log.info("mesh: the template sheet is not a height field in its frame; keeping its "
+                     "own outline")
+        else:
+            clean.info.update({k: v for k, v in sheet.info.items() if k not in clean.info})
+            clean.info["method"] = f"{sheet.info.get('method')}+outline"
+            sheet = clean
+            checks = {**checks, **surf.sheet_checks(sheet.points, sheet.faces)}
+    timings["outline"] = time.perf_counter() - t0
     P = sheet.points
     Fs = sheet.faces.astype(np.int64)
     S = len(P)
-    normals = vertex_normals(P, Fs, undefined=(0.0, 0.0, 1.0))
     loops = surf.boundary_loops(Fs, S)
     outer = max(loops, key=lambda lp: abs(surf.signed_area_xy(P[lp]))) if loops else np.arange(S)
 
     # UVs and textures
     size = int(params.texture_size)
     t0 = time.perf_counter()
-    bounds = uv_bounds(P[:, :2], size, params.texture_margin)
-    uv_front = planar_uvs(P[:, :2], bounds)
-    uv_back = np.stack([1.0 - uv_front[:, 0], uv_front[:, 1]], 1)
+    bounds = chart_bounds(P[:, :2], params.texture_margin, size) if params.uv_layout == "fit" else \
+        uv_bounds(P[:, :2], size, params.texture_margin)
     front, back, tinfo = bake_textures(cloud_working, fits, P, Fs, P[outer, :2], bounds, size,
-                                       params.alpha_threshold, params.min_coverage)
+                                       params.alpha_threshold, params.min_coverage,
+                                       int(params.supersample))
     timings["bake"] = time.perf_counter() - t0
 
-    # two sides
-    points = np.concatenate([P, P]).astype(np.float32)
-    faces = np.concatenate([Fs, Fs[:, ::-1] + S]).astype(np.int32)
+    lod0 = two_sided(P, Fs, bounds)
     mesh = TemplateMesh(
-        points=points, faces=faces,
-        normals=np.concatenate([normals, -normals]).astype(np.float32),
-        uvs=np.concatenate([uv_front, uv_back]).astype(np.float32),
-        side=np.concatenate([np.zeros(S, np.uint8), np.ones(S, np.uint8)]),
+        points=lod0.points, faces=lod0.faces, normals=lod0.normals, uvs=lod0.uvs, side=lod0.side,
         front_texture=_to_u8(front), back_texture=_to_u8(back),
         sheet_points=P.astype(np.float32), sheet_faces=Fs.astype(np.int32),
     )
+    t0 = time.perf_counter()
+    mesh.lods = [two_sided(*lod_sheet(rim_sheet, P, Fs, int(n)), bounds) for n in params.lod_vertices]
+    timings["lods"] = time.perf_counter() - t0
     mesh.report = quality_report(mesh, cloud_working, fits, sheet, checks, tinfo, bounds, params)
+    mesh.report["lod_vertices_per_side"] = [int(S)] + [int(len(l.points) // 2) for l in mesh.lods]
     mesh.report["timings"] = {k: round(v, 4) for k, v in timings.items()}
     return mesh
+
+
+def two_sided(P: np.ndarray, F: np.ndarray, bounds) -> TemplateLOD:
+    """The two-sided layout of a sheet (points (S, 3), faces (G, 3)): front copy (CCW from +Z,
+    normals, uv into the front texture) then back copy (reversed winding, negated normals,
+    u mirrored into the back texture)."""
+    P = np.asarray(P, np.float64)
+    F = np.asarray(F, np.int64)
+    S = len(P)
+    normals = vertex_normals(P, F, undefined=(0.0, 0.0, 1.0))
+    uv_front = planar_uvs(P[:, :2], bounds)
+    uv_back = np.stack([1.0 - uv_front[:, 0], uv_front[:, 1]], 1)
+    return TemplateLOD(points=np.concatenate([P, P]).astype(np.float32),
+                       faces=np.concatenate([F, F[:, ::-1] + S]).astype(np.int32),
+                       normals=np.concatenate([normals, -normals]).astype(np.float32),
+                       uvs=np.concatenate([uv_front, uv_back]).astype(np.float32),
+                       side=np.concatenate([np.zeros(S, np.uint8), np.ones(S, np.uint8)]))
+
+
+def lod_sheet(rim_sheet, P: np.ndarray, F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """A coarser sheet of about ``n`` vertices: the clean-outline re-triangulation of the
+    surface, or (not a height field) open3d's quadric decimation of the LOD0 sheet."""
+    if n >= len(P):
+        return P, F
+    src = rim_sheet if len(rim_sheet.faces) else None
+    if src is not None:
+        lod = surf.remesh_sheet(src.points, src.faces, n)
+        if lod is not None:
+            return lod.points, lod.faces
+    import open3d as o3d
+
+    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(P, np.float64)),
+                                  o3d.utility.Vector3iVector(np.asarray(F, np.int32)))
+    d = m.simplify_quadric_decimation(target_number_of_triangles=max(2 * n - 2, 2))
+    d.remove_unreferenced_vertices()
+    return np.asarray(d.vertices, np.float64), np.asarray(d.triangles, np.int64)
 
 
 def quality_report(mesh: TemplateMesh, cloud_working, fits, sheet, checks, tinfo, bounds, params) -> dict:
