@@ -227,7 +227,9 @@ class Plant:
         self.stage.GetRootLayer().Save()
         payload = self._baked_payload_path()
         if payload is not None and self._dirty_geometry:
-            write_baked_layer(payload, self.asset, asset_leaves(self.asset, separate_sheets=True))
+            a = self.asset
+            write_baked_layer(payload, a, asset_leaves(a, separate_sheets=True),
+                              [asset_leaves(a.at_lod(k), separate_sheets=True) for k in range(1, len(a.lods) + 1)])
         self._dirty_geometry = False
         return self.path
 
@@ -244,7 +246,9 @@ class Plant:
         if options is None:
             fmt = "png" if Path(a.front_texture).suffix.lower() == ".png" else "jpg"
             options = WriteOptions(texture_format=fmt, texture_max_size=16384)
-        return write_stage(path, a, textures, options, leaves=asset_leaves(a, separate_sheets=True))
+        return write_stage(path, a, textures, options, leaves=asset_leaves(a, separate_sheets=True),
+                           lod_leaves=[asset_leaves(a.at_lod(k), separate_sheets=True)
+                                       for k in range(1, len(a.lods) + 1)])
 
     # ---- helpers ------------------------------------------------------------------------------
     def _baked_payload_path(self):

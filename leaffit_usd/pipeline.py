@@ -305,7 +305,9 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
             extra_metadata={"input_name": input_path.name})
         result = write_stage(output_path, asset,
                              LeafTextures(template.front_texture, template.back_texture), o.write,
-                             leaves=asset_leaves(asset, separate_sheets=True))
+                             leaves=asset_leaves(asset, separate_sheets=True),
+                             lod_leaves=[asset_leaves(asset.at_lod(k), separate_sheets=True)
+                                         for k in range(1, len(asset.lods) + 1)])
 
     report = _report(input_path, output_path, sha, result, {**T.timings, "total": round(
         time.perf_counter() - t_start, 4)}, cloud, cloud_in, iso, fits, template, asset, frame, root_index)

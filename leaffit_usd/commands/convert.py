@@ -72,16 +72,16 @@ def add_options(p) -> None:
     g.add_argument("--vertex-budget", type=pos_int, default=None,
                    help=f"template sheet vertices ({default(MeshParams, 'vertex_budget')})")
     g.add_argument("--bake-size", type=pos_int, default=None,
-                   help=f"resolution the textures are baked at ({default(MeshParams, 'texture_size')})")
+                   help=f"resolution the textures are baked at (default: --texture-size)")
     g = p.add_argument_group("output")
     g.add_argument("--up-axis", choices=["Y", "Z", "y", "z"], default="Y", help="the stage's upAxis (%(default)s)")
     g.add_argument("--meters-per-unit", type=pos_float, default=1.0, help="the stage's metersPerUnit (%(default)g)")
     g.add_argument("--height", type=pos_float, default=None, metavar="M",
                    help="real plant height in metres (default: keep the capture's units)")
     g.add_argument("--texture-format", choices=TEXTURE_FORMATS, default=WriteOptions.texture_format,
-                   help="jpg (compact) or png (keeps alpha) (%(default)s)")
+                   help="png (keeps the alpha cut-out of the leaf's outline) or jpg (compact, no alpha) (%(default)s)")
     g.add_argument("--texture-size", type=pos_int, default=WriteOptions.texture_max_size,
-                   help="longest side of the written textures (%(default)s)")
+                   help="texture resolution in pixels: the bake and the written files (%(default)s)")
     g.add_argument("--baked", choices=["auto", "yes", "no"], default="auto",
                    help="baked-leaves payload (variant leafRepresentation=baked) for tools without the "
                         "deformer: auto = beside .usda/.usdc, not packed into .usdz (default)")
@@ -109,7 +109,8 @@ def options_from_args(args):
         **frame_options(args), labels=args.labels, edits=args.edits,
         segment=segment_params(args),
         fit=replace(FitParams.paper() if args.paper_fit else FitParams(), **fit),
-        mesh=MeshParams(**given(vertex_budget=args.vertex_budget, texture_size=args.bake_size)),
+        mesh=MeshParams(**given(vertex_budget=args.vertex_budget,
+                                texture_size=args.bake_size if args.bake_size is not None else args.texture_size)),
         write=WriteOptions(texture_format=args.texture_format, texture_max_size=args.texture_size,
                            baked={"auto": "auto", "yes": True, "no": False}[args.baked]),
         up_axis=args.up_axis.upper(), meters_per_unit=args.meters_per_unit, height_m=args.height,

@@ -31,7 +31,7 @@ from leaffit_usd.geometry.quaternion import matrix_to_quat
 from leaffit_usd.mesh.result import Stem, TemplateMesh
 from leaffit_usd.serialize import jsonable
 from leaffit_usd.splats.frame import Frame
-from leaffit_usd.usd.asset import PlantAsset
+from leaffit_usd.usd.asset import AssetLOD, PlantAsset
 
 # Distance between the front and back sheets where they are drawn without the deformer (the
 # prototype Mesh's points) and in the baked leaves, as a fraction of the template's largest extent
@@ -128,11 +128,26 @@ def asset_from_results(template: TemplateMesh, fits: LeafFits, stem: Stem | None
     offset = float(sheet_offset) * extent
     tpl_points = pts.copy()
 
-    if stem is not None and len(stem.points):
-        stem_points = (s_a * np.asarray(stem.points, np.float64) @ r_a.T).astype(np.float32)
-        stem_faces = np.asarray(stem.faces, np.int32)
-    else:
-        stem_points, stem_faces = np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)
+    def stem_arrays(m):
+        if m is None or not len(m.points):
+            return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), None
+        c = getattr(m, "colors", None)
+        return ((s_a * np.asarray(m.points, np.float64) @ r_a.T).astype(np.float32),
+                np.asarray(m.faces, np.int32), None if c is None else np.asarray(c, np.float32))
+
+    stem_points, stem_faces, stem_colors = stem_arrays(stem)
+    lods = []
+    t_lods = list(getattr(template, "lods", []) or [])
+    s_lods = list(getattr(stem, "lods", []) or []) if stem is not None else []
+    for k in range(max(len(t_lods), len(s_lods))):
+        t = t_lods[k] if k < len(t_lods) else template
+        sp, sf, sc = stem_arrays(s_lods[k]) if k < len(s_lods) else (stem_points, stem_faces, stem_colors)
+        lods.append(AssetLOD(template_points=np.asarray(t.points, np.float32),
+                             template_faces=np.asarray(t.faces, np.int32),
+                             template_normals=np.asarray(t.normals, np.float32),
+                             template_uvs=np.asarray(t.uvs, np.float32),
+                             template_side=np.asarray(t.side, np.uint8),
+                             stem_points=sp, stem_faces=sf, stem_colors=sc))
 
     metadata = {
         "tool": "leaffit-usd",
@@ -169,4 +184,6 @@ def asset_from_results(template: TemplateMesh, fits: LeafFits, stem: Stem | None
         stem_faces=stem_faces,
         asset_to_input=asset_to_input,
         metadata=metadata,
+        stem_colors=stem_colors,
+        lods=lods,
     )

@@ -31,6 +31,9 @@ class PlantAsset:
     asset_to_input : (4, 4) float64, asset frame -> the input capture's frame
     front_texture, back_texture : texture file paths as authored (relative to the stage)
     metadata : parameters, input hash, tool version
+    stem_colors : (P, 3) float32 sRGB vertex colours of the stem (from its Gaussians), or None
+    lods : coarser levels of detail, each an :class:`AssetLOD` (LOD1, LOD2, ...); the fields
+        above are LOD0
     """
 
     template_points: np.ndarray
@@ -52,10 +55,25 @@ class PlantAsset:
     front_texture: str = ""
     back_texture: str = ""
     metadata: dict = field(default_factory=dict)
+    stem_colors: np.ndarray | None = None
+    lods: list = field(default_factory=list)
 
     @property
     def n_leaves(self) -> int:
         return int(len(self.targets))
+
+    def at_lod(self, k: int) -> "PlantAsset":
+        """A copy whose template and stem are those of level of detail ``k`` (0 = this one)."""
+        import dataclasses
+
+        if k == 0:
+            return self
+        lod = self.lods[k - 1]
+        return dataclasses.replace(
+            self, template_points=lod.template_points, template_faces=lod.template_faces,
+            template_normals=lod.template_normals, template_uvs=lod.template_uvs,
+            template_side=lod.template_side, stem_points=lod.stem_points,
+            stem_faces=lod.stem_faces, stem_colors=lod.stem_colors, lods=[])
 
     @property
     def sheet_offset(self) -> float:
@@ -83,3 +101,17 @@ def offset_sheets(points: np.ndarray, normals: np.ndarray, offset: float) -> np.
     n = np.asarray(normals, np.float64)
     n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
     return (np.asarray(points, np.float64) + 0.5 * offset * n).astype(np.float32)
+
+@dataclass
+class AssetLOD:
+    """One coarser level of detail: the template (same layout as PlantAsset's template_* fields,
+    template local frame, same textures) and the stem (asset frame)."""
+
+    template_points: np.ndarray
+    template_faces: np.ndarray
+    template_normals: np.ndarray
+    template_uvs: np.ndarray
+    template_side: np.ndarray
+    stem_points: np.ndarray
+    stem_faces: np.ndarray
+    stem_colors: np.ndarray | None = None

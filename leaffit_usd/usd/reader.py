@@ -33,7 +33,22 @@ def open_stage(path, load_payloads: bool = False):
     if stage is None:
         raise InputFileError(p, "not a readable USD file")
     select_representation(stage, "deformer")
+    select_variant(stage, "LOD", "LOD0")   # the full-detail geometry (LOD0 is the default)
     return stage
+
+
+def select_variant(stage, set_name: str, name: str) -> None:
+    """Select variant ``name`` of the default prim's variant set ``set_name`` in the stage's
+    session layer (never saved); no-op when the set or the variant does not exist."""
+    from pxr import Usd
+
+    root = stage.GetDefaultPrim()
+    if not root:
+        return
+    vset = root.GetVariantSets().GetVariantSet(set_name)
+    if vset and vset.IsValid() and name in vset.GetVariantNames() and vset.GetVariantSelection() != name:
+        with Usd.EditContext(stage, stage.GetSessionLayer()):
+            vset.SetVariantSelection(name)
 
 
 def select_representation(stage, name: str = "deformer") -> None:
@@ -158,6 +173,7 @@ def read_stage_object(stage, path="<stage>") -> PlantAsset:
         sigma=float(_get(inst_prim, S.ATTR_SIGMA, 0.1)), reg=float(_get(inst_prim, S.ATTR_REG, 0.01)),
         stem_points=stem_pts, stem_faces=stem_faces, asset_to_input=asset_to_input,
         front_texture=front_tex, back_texture=back_tex, metadata=metadata,
+        stem_colors=_stem_colors(root, len(stem_pts)), lods=_read_lods(stage, tmpl_prim, root, off),
     )
 
 
@@ -209,6 +225,60 @@ def _template_textures(mesh) -> tuple[str, str]:
         elif subset.GetPrim().GetName() == "back":
             back_tex = tex
     return front_tex, back_tex
+
+
+def _stem_colors(root, n: int):
+    """(n, 3) float32 sRGB stem vertex colours from the Stem's displayColor (linear), or None."""
+    from pxr import UsdGeom
+
+    prim = root.GetChild("Stem") if root else None
+    if not prim or not n:
+        return None
+    pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
+    if not pv or not pv.HasValue():
+        return None
+    lin = np.clip(np.asarray(pv.Get(), np.float64).reshape(-1, 3), 0, 1)
+    if len(lin) != n:
+        return None
+    return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055).astype(np.float32)
+
+
+def _read_lods(stage, tmpl_prim, root, sheet_offset: float) -> list:
+    """The coarser levels of detail of the ``LOD`` variant set (LOD1, LOD2, ...) as AssetLODs,
+    each read with that variant selected in the session layer (the file is not touched)."""
+    from pxr import UsdGeom
+
+    from leaffit_usd.usd.asset import AssetLOD
+
+    vset = root.GetVariantSets().GetVariantSet("LOD") if root else None
+    if not vset or not vset.IsValid():
+        return []
+    names = sorted((n for n in vset.GetVariantNames() if n.startswith("LOD") and n[3:].isdigit()
+                    and int(n[3:]) > 0), key=lambda n: int(n[3:]))
+    original = vset.GetVariantSelection()
+    out = []
+    try:
+        for nm in names:
+            select_variant(stage, "LOD", nm)
+            mesh = UsdGeom.Mesh(tmpl_prim)
+            pts = _np(mesh.GetPointsAttr().Get(), np.float32, (3,))
+            nrm = _np(mesh.GetNormalsAttr().Get(), np.float32, (3,))
+            if sheet_offset > 0 and len(nrm) == len(pts):
+                pts = offset_sheets(pts, nrm, -sheet_offset)
+            pv = UsdGeom.PrimvarsAPI(tmpl_prim)
+            st, sd = pv.GetPrimvar("st"), pv.GetPrimvar("leaffit:side")
+            side = _np(sd.Get() if sd else None, np.int32).astype(np.uint8)
+            stem = root.GetChild("Stem")
+            sp = _np(UsdGeom.Mesh(stem).GetPointsAttr().Get(), np.float32, (3,)) if stem else np.zeros((0, 3), np.float32)
+            sf = _np(UsdGeom.Mesh(stem).GetFaceVertexIndicesAttr().Get(), np.int32, (3,)) if stem else np.zeros((0, 3), np.int32)
+            out.append(AssetLOD(template_points=pts,
+                                template_faces=_np(mesh.GetFaceVertexIndicesAttr().Get(), np.int32, (3,)),
+                                template_normals=nrm, template_uvs=_np(st.Get() if st else None, np.float32, (2,)),
+                                template_side=side if len(side) == len(pts) else np.zeros(len(pts), np.uint8),
+                                stem_points=sp, stem_faces=sf, stem_colors=_stem_colors(root, len(sp))))
+    finally:
+        select_variant(stage, "LOD", original or "LOD0")
+    return out
 
 
 def _material_texture(material) -> str:

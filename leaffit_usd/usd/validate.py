@@ -82,20 +82,34 @@ def usd_validation(stage) -> list[Finding]:
     reg = UsdValidation.ValidationRegistry()
     ctx = UsdValidation.ValidationContext(reg.GetOrLoadAllValidators())
     out = _usd_errors(ctx.Validate(stage))
-    from leaffit_usd.usd.reader import select_representation
+    from leaffit_usd.usd.reader import select_representation, select_variant
 
     root = stage.GetDefaultPrim()
     vset = root.GetVariantSets().GetVariantSet("leafRepresentation") if root else None
-    if vset and vset.IsValid():
-        original = vset.GetVariantSelection()
+    lods = root.GetVariantSets().GetVariantSet("LOD") if root else None
+    reps = vset.GetVariantNames() if vset and vset.IsValid() else [None]
+    levels = lods.GetVariantNames() if lods and lods.IsValid() else [None]
+    if len(reps) * len(levels) > 1:
+        orig_rep = vset.GetVariantSelection() if reps != [None] else None
+        orig_lod = lods.GetVariantSelection() if levels != [None] else None
         try:
-            for name in vset.GetVariantNames():
-                if name != original:
-                    select_representation(stage, name)  # session layer: the file is not touched
-                    out += [Finding(f.severity, f.rule, f.path, f"{f.message} [variant {name}]")
+            for rep in reps:
+                for lod in levels:
+                    if (rep, lod) == (orig_rep, orig_lod):
+                        continue
+                    # session layer: the file is not touched
+                    if rep is not None:
+                        select_representation(stage, rep)
+                    if lod is not None:
+                        select_variant(stage, "LOD", lod)
+                    tag = ", ".join(x for x in (rep, lod) if x)
+                    out += [Finding(f.severity, f.rule, f.path, f"{f.message} [variant {tag}]")
                             for f in _usd_errors(ctx.Validate(stage))]
         finally:
-            select_representation(stage, original)
+            if orig_rep is not None:
+                select_representation(stage, orig_rep)
+            if orig_lod is not None:
+                select_variant(stage, "LOD", orig_lod)
     return out
 
 
@@ -348,10 +362,21 @@ def _check_baked(stage, root, L: int, add) -> None:
         original = vset.GetVariantSelection()
         try:
             select_representation(stage, "baked")
-            baked = [p for p in Usd.PrimRange(root) if p.IsA(UsdGeom.Mesh) and not p.IsAbstract()
-                     and "BakedLeaves" in str(p.GetPath()) and p.GetParent().GetName() == "BakedLeaves"]
-            if len(baked) != L:
-                add("error", "BakedVariant", root.GetPath(), f"variant 'baked' has {len(baked)} leaf meshes, expected {L}")
+            from leaffit_usd.usd.reader import select_variant
+
+            lods = root.GetVariantSets().GetVariantSet("LOD")
+            levels = lods.GetVariantNames() if lods and lods.IsValid() else [None]
+            orig_lod = lods.GetVariantSelection() if levels != [None] else None
+            for lod in levels:
+                if lod is not None:
+                    select_variant(stage, "LOD", lod)
+                baked = [p for p in Usd.PrimRange(root) if p.IsA(UsdGeom.Mesh) and not p.IsAbstract()
+                         and "/BakedLeaves/" in str(p.GetPath()) and p.GetName().startswith("leaf_")]
+                if len(baked) != L:
+                    add("error", "BakedVariant", root.GetPath(), f"variant 'baked'{' ' + lod if lod else ''} "
+                        f"has {len(baked)} leaf meshes, expected {L}")
+            if orig_lod is not None:
+                select_variant(stage, "LOD", orig_lod)
             inst_after = find_instancer(stage)
             if inst_after is not None and inst_after.IsActive():
                 add("warning", "BakedVariant", root.GetPath(), "variant 'baked' leaves the "

@@ -58,8 +58,9 @@ class LeafTextures:
 class WriteOptions:
     """How the stage is written.
 
-    texture_format : "jpg" (default, compact; alpha dropped: the mesh outline is the leaf's
-        outline) or "png" (keeps alpha, wired to opacity with a 0.5 cut-out threshold)
+    texture_format : "png" (default: keeps the alpha cut-out, wired to opacity with
+        opacityThreshold 0.5, so the leaf's fine serration shows) or "jpg" (compact; alpha
+        dropped: the mesh outline is the leaf's outline)
     texture_max_size : textures larger than this (pixels, longest side) are downsampled
     jpeg_quality : 1..100
     baked : write the baked-leaves payload (variant leafRepresentation = baked): True, False or
@@ -68,7 +69,7 @@ class WriteOptions:
     prim_name : name of the plant prim (default: the output file's stem, made a valid identifier)
     """
 
-    texture_format: str = "jpg"
+    texture_format: str = "png"
     texture_max_size: int = 1024
     jpeg_quality: int = 90
     baked: bool | str = "auto"
@@ -105,7 +106,8 @@ class WriteResult:
 
 
 def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
-                options: WriteOptions | None = None, leaves: np.ndarray | None = None) -> WriteResult:
+                options: WriteOptions | None = None, leaves: np.ndarray | None = None,
+                lod_leaves: list | None = None) -> WriteResult:
     """Write ``asset`` as a USD stage at ``path`` (.usda/.usdc/.usd/.usdz), atomically.
 
     textures : the front/back leaf images, or None (materials then use a constant green and no
@@ -113,6 +115,8 @@ def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
     leaves : (L, V, 3) float, the explicit leaves in the asset frame with their sheets apart
         (``runtime.evaluator.asset_leaves(asset, separate_sheets=True)``): the leaves' extent
         and the baked payload. Required when the asset has leaves (this module only writes).
+    lod_leaves : the same for each of ``asset.lods`` ((L, V_k, 3) each, from that level's
+        template), or None: then the baked representation shows LOD0's leaves at every level.
     For .usda/.usdc the textures go to ``textures/<name>.front.<ext>`` and the baked payload to
     ``<name>.baked.usdc`` beside the stage (relative paths); for .usdz all of them are packed.
     Returns a :class:`WriteResult`. Raises ParameterError for an unknown extension or option.
@@ -145,12 +149,12 @@ def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
         want_baked = (ext != ".usdz") if options.baked == "auto" else bool(options.baked)
         baked_rel = f"{stem}.baked.usdc" if want_baked and asset.n_leaves else None
         if baked_rel:
-            write_baked_layer(tmp / baked_rel, asset, leaves)
+            write_baked_layer(tmp / baked_rel, asset, leaves, lod_leaves)
             rel["baked"] = baked_rel
         main_rel = f"{stem}.usdc" if ext == ".usdz" else path.name
         has_alpha = textures is not None and options.texture_format == "png"
         _write_main_layer(tmp / main_rel, asset, leaves, name, front_tex, back_tex, has_alpha,
-                          "./" + baked_rel if baked_rel else None)
+                          "./" + baked_rel if baked_rel else None, bool(lod_leaves))
         result = WriteResult(path=path)
         if ext == ".usdz":
             pkg = tmp / path.name
@@ -205,6 +209,8 @@ def _check_asset(a: PlantAsset) -> None:
     if a.stem_faces.size and (a.stem_faces.min() < 0 or a.stem_faces.max() >= len(a.stem_points)):
         raise ParameterError("asset.stem_faces", f"indices in 0..{len(a.stem_points) - 1}",
                              f"range {a.stem_faces.min()}..{a.stem_faces.max()}")
+    if a.stem_colors is not None and np.shape(a.stem_colors) != np.shape(a.stem_points):
+        raise ParameterError("asset.stem_colors", f"({len(a.stem_points)}, 3) or None", np.shape(a.stem_colors))
     for name in ("template_points", "targets", "positions", "orientations", "scales", "stem_points"):
         if not np.isfinite(getattr(a, name)).all():
             raise ParameterError(f"asset.{name}", "finite values", "NaN or inf entries")
@@ -286,6 +292,17 @@ def _author_template_mesh(stage, path: str, a: PlantAsset, looks: str):
     mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
     mesh.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
     mesh.CreateDoubleSidedAttr(False)
+    _set_template_geometry(mesh, a)
+    _bind_sides(stage, mesh, _face_sides(a), looks)
+    mesh.GetPrim().SetCustomDataByKey("leaffit:role", "template")
+    return mesh
+
+
+def _set_template_geometry(mesh, a) -> None:
+    """Points (drawn), topology, normals, st and leaffit:side of the template Mesh from ``a`` (a
+    PlantAsset or, for a level of detail, a copy carrying that level's template arrays)."""
+    from pxr import Sdf, UsdGeom, Vt
+
     drawn = a.drawn_template_points()
     mesh.CreatePointsAttr(vec3f_array(drawn))
     mesh.CreateExtentAttr(extent(drawn))
@@ -297,10 +314,62 @@ def _author_template_mesh(stage, path: str, a: PlantAsset, looks: str):
     st = pv.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
     st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(a.template_uvs, np.float32)))
     side = pv.CreatePrimvar("leaffit:side", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex)
-    side.Set(Vt.IntArray.FromNumpy(a.template_side.astype(np.int32)))
-    _bind_sides(stage, mesh, _face_sides(a), looks)
-    mesh.GetPrim().SetCustomDataByKey("leaffit:role", "template")
-    return mesh
+    side.Set(Vt.IntArray.FromNumpy(np.asarray(a.template_side).astype(np.int32)))
+
+
+def _lod_asset(a: PlantAsset, lod) -> PlantAsset:
+    """A copy of ``a`` whose template and stem are those of level of detail ``lod`` (AssetLOD)."""
+    return a.at_lod(a.lods.index(lod) + 1)
+
+
+def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    c = np.clip(np.asarray(c, np.float64), 0.0, 1.0)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def stem_material_color(a: PlantAsset) -> tuple:
+    """Linear RGB of the stem material: the mean of the stem's vertex colours, else STEM_COLOR."""
+    if a.stem_colors is not None and len(a.stem_colors):
+        return tuple(float(x) for x in _srgb_to_linear(np.asarray(a.stem_colors)).mean(0))
+    return STEM_COLOR
+
+
+def _set_stem_geometry(mesh, a: PlantAsset) -> None:
+    """Points, topology, smooth vertex normals and (when known) displayColor of the stem Mesh."""
+    from pxr import Sdf, UsdGeom, Vt
+
+    from leaffit_usd.geometry.normals import vertex_normals
+
+    mesh.CreatePointsAttr(vec3f_array(a.stem_points))
+    mesh.CreateExtentAttr(extent(a.stem_points))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(a.stem_faces), 3, np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(a.stem_faces, np.int32).ravel()))
+    n = vertex_normals(a.stem_points, a.stem_faces, undefined=(0.0, 0.0, 1.0))
+    mesh.CreateNormalsAttr(vec3f_array(n))
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    if a.stem_colors is not None and len(a.stem_colors) == len(a.stem_points):
+        dc = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray,
+                                                     UsdGeom.Tokens.vertex)
+        dc.Set(vec3f_array(_srgb_to_linear(a.stem_colors)))
+
+
+def make_stem_material(stage, path: str, a: PlantAsset):
+    """UsdPreviewSurface whose diffuseColor reads the stem's vertex colours (primvar
+    displayColor, linear) with their mean as the fallback; a constant colour without them."""
+    from pxr import Gf, Sdf, UsdShade
+
+    color = stem_material_color(a)
+    mat = make_material(stage, path, None, color, False)
+    if a.stem_colors is None or not len(a.stem_colors):
+        return mat
+    surf = UsdShade.Shader(stage.GetPrimAtPath(f"{path}/PreviewSurface"))
+    reader = UsdShade.Shader.Define(stage, f"{path}/ColorReader")
+    reader.CreateIdAttr("UsdPrimvarReader_float3")
+    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("displayColor")
+    reader.CreateInput("fallback", Sdf.ValueTypeNames.Float3).Set(Gf.Vec3f(*color))
+    reader.CreateOutput("result", Sdf.ValueTypeNames.Float3)
+    surf.GetInput("diffuseColor").ConnectToSource(reader.ConnectableAPI(), "result")
+    return mat
 
 
 def _bind_sides(stage, mesh, face_side: np.ndarray, looks: str | None):
@@ -319,7 +388,7 @@ def _bind_sides(stage, mesh, face_side: np.ndarray, looks: str | None):
 
 
 def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, front_tex: str, back_tex: str,
-                      has_alpha: bool, baked_rel: str | None) -> None:
+                      has_alpha: bool, baked_rel: str | None, baked_lods: bool = False) -> None:
     from pxr import Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 
     stage = Usd.Stage.CreateNew(str(out))
@@ -339,7 +408,7 @@ def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, f
     green = (0.1, 0.35, 0.08)
     make_material(stage, f"{looks}/LeafFront", front_tex or None, green, has_alpha)
     make_material(stage, f"{looks}/LeafBack", back_tex or None, green, has_alpha)
-    stem_mat = make_material(stage, f"{looks}/Stem", None, STEM_COLOR, False)
+    stem_mat = make_stem_material(stage, f"{looks}/Stem", a)
 
     # the leaves: one template Mesh prototype + a PointInstancer with the MLS deformer
     inst_path = f"{root}/Leaves"
@@ -378,10 +447,7 @@ def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, f
     if len(a.stem_points) and len(a.stem_faces):
         stem = UsdGeom.Mesh.Define(stage, f"{root}/Stem")
         stem.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-        stem.CreatePointsAttr(vec3f_array(a.stem_points))
-        stem.CreateExtentAttr(extent(a.stem_points))
-        stem.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(a.stem_faces), 3, np.int32)))
-        stem.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(a.stem_faces, np.int32).ravel()))
+        _set_stem_geometry(stem, a)
         UsdShade.MaterialBindingAPI.Apply(stem.GetPrim()).Bind(stem_mat)
         stem.GetPrim().SetCustomDataByKey("leaffit:role", "stem")
 
@@ -398,16 +464,84 @@ def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, f
             # deactivate (not hide) the instancer: Blender 4.2 crashes importing an invisible
             # PointInstancer next to other meshes; readers force the 'deformer' variant
             inst.GetPrim().SetActive(False)
-            topo = stage.OverridePrim(f"{root}/BakedLeaves/LeafTopology")
-            for side, mat in (("front", "LeafFront"), ("back", "LeafBack")):
-                sub = stage.OverridePrim(f"{topo.GetPath()}/{side}")
-                UsdShade.MaterialBindingAPI.Apply(sub).Bind(
-                    UsdShade.Material(stage.GetPrimAtPath(f"{looks}/{mat}")))
+            for k in range(len(a.lods) + 1 if baked_lods else 1):
+                topo = stage.OverridePrim(f"{root}/BakedLeaves/{_baked_topology(k)}")
+                for side, mat in (("front", "LeafFront"), ("back", "LeafBack")):
+                    sub = stage.OverridePrim(f"{topo.GetPath()}/{side}")
+                    UsdShade.MaterialBindingAPI.Apply(sub).Bind(
+                        UsdShade.Material(stage.GetPrimAtPath(f"{looks}/{mat}")))
         vset.SetVariantSelection("deformer")
+    if a.lods:
+        _author_lod_variants(stage, plant, a, tmpl, root, bool(baked_rel) and baked_lods)
     stage.GetRootLayer().documentation = (
         "LeafFit plant: one template leaf Mesh deformed per instance by affine MLS "
         "(LeafFitMLSDeformerAPI); written by leaffit-usd")
     stage.GetRootLayer().Save()
+
+
+def _author_lod_variants(stage, plant, a: PlantAsset, tmpl, root: str, baked: bool) -> None:
+    """Variant set ``LOD`` on the plant: LOD0 (default) is the geometry authored above; LODk
+    overrides the template Mesh (points, topology, normals, st, side subsets) and the stem Mesh
+    with level k's arrays. With the baked representation, a nested ``leafRepresentation``
+    variant inside LODk switches the payload's leaves to its LODk group."""
+    from pxr import Sdf, Usd, UsdGeom, Vt
+
+    # local opinions are stronger than variant opinions: LOD0's geometry moves into its variant
+    layer = stage.GetRootLayer()
+    tpath = tmpl.GetPath()
+    varying = {tpath: _TEMPLATE_ATTRS, tpath.AppendChild("front"): ("indices",),
+               tpath.AppendChild("back"): ("indices",)}
+    if len(a.stem_points):
+        varying[plant.GetPath().AppendChild("Stem")] = _STEM_ATTRS
+    for path, attrs in varying.items():
+        spec = layer.GetPrimAtPath(path)
+        for nm in attrs:
+            if spec is not None and nm in spec.properties:
+                spec.RemoveProperty(spec.properties[nm])
+    # LOD first: its nested overs must be stronger than the leafRepresentation subtree (whose
+    # payload keeps the coarser groups inactive)
+    vset = plant.GetVariantSets().AddVariantSet("LOD", Usd.ListPositionFrontOfPrependList)
+    names = [f"LOD{k}" for k in range(len(a.lods) + 1)]
+    for nm in names:
+        vset.AddVariant(nm)
+    for k, lod in enumerate([None] + list(a.lods)):
+        la = a if lod is None else _lod_asset(a, lod)
+        vset.SetVariantSelection(names[k])
+        with vset.GetVariantEditContext():
+            mesh = UsdGeom.Mesh(stage.OverridePrim(tmpl.GetPath()))
+            _set_template_geometry(mesh, la)
+            sides = _face_sides(la)
+            for side, nm in ((0, "front"), (1, "back")):
+                sub = UsdGeom.Subset(stage.OverridePrim(tmpl.GetPath().AppendChild(nm)))
+                sub.CreateIndicesAttr(Vt.IntArray.FromNumpy(np.flatnonzero(sides == side).astype(np.int32)))
+            if len(a.stem_points) and len(la.stem_points):
+                _set_stem_geometry(UsdGeom.Mesh(stage.OverridePrim(f"{root}/Stem")), la)
+            if baked and k > 0:
+                rep = plant.GetVariantSets().AddVariantSet("leafRepresentation")
+                rep.AddVariant("baked")
+        if baked and k > 0:
+            # edit /Plant{LOD=LODk}{leafRepresentation=baked} explicitly: a variant edit context
+            # would follow the composed selection ('deformer')
+            nested = Sdf.Path(f"{root}{{LOD={names[k]}}}{{leafRepresentation=baked}}BakedLeaves")
+            for j in range(a.n_leaves):
+                Sdf.CreatePrimInLayer(layer, nested.AppendChild(f"leaf_{j:04d}")).active = False
+            Sdf.CreatePrimInLayer(layer, nested.AppendChild(names[k])).active = True
+    vset.SetVariantSelection(names[0])
+    spec = layer.GetPrimAtPath(plant.GetPath())
+    order = list(spec.variantSetNameList.prependedItems)
+    if "LOD" in order:
+        spec.variantSetNameList.prependedItems = ["LOD"] + [n for n in order if n != "LOD"]
+
+
+_TEMPLATE_ATTRS = ("points", "extent", "faceVertexCounts", "faceVertexIndices", "normals",
+                   "primvars:st", "primvars:leaffit:side")
+_STEM_ATTRS = ("points", "extent", "faceVertexCounts", "faceVertexIndices", "normals",
+               "primvars:displayColor")
+
+
+def _baked_topology(k: int) -> str:
+    """Name of the class prim holding the baked leaves' shared topology at level of detail k."""
+    return "LeafTopology" if k == 0 else f"LeafTopologyLOD{k}"
 
 
 def _attr(prim, name, type_name, value, uniform=False):
@@ -455,7 +589,7 @@ def _flat_params(params, prefix="") -> dict:
 # baked payload layer
 
 
-def write_baked_layer(out: Path, a: PlantAsset, leaves: np.ndarray) -> None:
+def write_baked_layer(out: Path, a: PlantAsset, leaves: np.ndarray, lod_leaves: list | None = None) -> None:
     """The baked payload layer: one Mesh per leaf (asset frame), sharing topology/UVs/subsets
     through an inherited class. leaves : (L, V, 3) as :func:`write_stage` takes them.
 
@@ -488,6 +622,30 @@ def write_baked_layer(out: Path, a: PlantAsset, leaves: np.ndarray) -> None:
         leaf.CreatePointsAttr(vec3f_array(leaves[j]))
         leaf.CreateExtentAttr(extent(leaves[j]))
         leaf.GetPrim().SetCustomDataByKey("leaffit:leafLabel", int(a.leaf_labels[j]))
+    # coarser levels of detail: one inactive group each (the main layer's LOD variant
+    # deactivates the LOD0 leaves and activates its group)
+    for k, lod in enumerate(a.lods if lod_leaves else [], start=1):
+        la = _lod_asset(a, lod)
+        lv = _check_leaves(la, lod_leaves[k - 1]).astype(np.float32)
+        tp = f"/BakedLeaves/{_baked_topology(k)}"
+        cls = stage.CreateClassPrim(tp)
+        cls.SetTypeName("Mesh")
+        m = UsdGeom.Mesh(cls)
+        m.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        m.CreateDoubleSidedAttr(False)
+        m.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(la.template_faces), 3, np.int32)))
+        m.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(la.template_faces, np.int32).ravel()))
+        pv = UsdGeom.PrimvarsAPI(m).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+        pv.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(la.template_uvs, np.float32)))
+        _bind_sides(stage, m, _face_sides(la), None)
+        grp = UsdGeom.Xform.Define(stage, f"/BakedLeaves/LOD{k}")
+        for j in range(a.n_leaves):
+            leaf = UsdGeom.Mesh.Define(stage, f"/BakedLeaves/LOD{k}/leaf_{j:04d}")
+            leaf.GetPrim().GetInherits().AddInherit(tp)
+            leaf.CreatePointsAttr(vec3f_array(lv[j]))
+            leaf.CreateExtentAttr(extent(lv[j]))
+            leaf.GetPrim().SetCustomDataByKey("leaffit:leafLabel", int(a.leaf_labels[j]))
+        grp.GetPrim().SetActive(False)
     stage.GetRootLayer().Save()
 
 

@@ -29,8 +29,8 @@ def test_round_trip_and_usd_validation(tmp_path, asset, textures, ext):
         assert x.shape == y.shape, name
         np.testing.assert_allclose(y, x, rtol=1e-6, atol=1e-7, err_msg=name)
     assert b.sigma == pytest.approx(asset.sigma) and b.reg == pytest.approx(asset.reg)
-    assert b.front_texture == "./textures/plant.front.jpg"
-    assert b.back_texture == "./textures/plant.back.jpg"
+    assert b.front_texture == "./textures/plant.front.png"
+    assert b.back_texture == "./textures/plant.back.png"
     assert b.metadata["input_sha256"] == asset.metadata["input_sha256"]
     rep = validate_file(out)
     assert rep.count("error") == 0, [str(f) for f in rep.findings]
@@ -38,11 +38,11 @@ def test_round_trip_and_usd_validation(tmp_path, asset, textures, ext):
     if ext == "usdz":
         names = zipfile.ZipFile(out).namelist()
         assert names[0] == "plant.usdc"
-        assert {"textures/plant.front.jpg", "textures/plant.back.jpg", "plant.baked.usdc"} <= set(names)
+        assert {"textures/plant.front.png", "textures/plant.back.png", "plant.baked.usdc"} <= set(names)
         assert all(i.compress_type == zipfile.ZIP_STORED for i in zipfile.ZipFile(out).infolist())
         assert sorted(p.name for p in tmp_path.iterdir()) == ["plant.usdz"]
     else:
-        assert (tmp_path / "textures" / "plant.front.jpg").is_file()
+        assert (tmp_path / "textures" / "plant.front.png").is_file()
         assert (tmp_path / "plant.baked.usdc").is_file()
 
 
