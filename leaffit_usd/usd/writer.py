@@ -317,11 +317,6 @@ def _set_template_geometry(mesh, a) -> None:
     side.Set(Vt.IntArray.FromNumpy(np.asarray(a.template_side).astype(np.int32)))
 
 
-def _lod_asset(a: PlantAsset, lod) -> PlantAsset:
-    """A copy of ``a`` whose template and stem are those of level of detail ``lod`` (AssetLOD)."""
-    return a.at_lod(a.lods.index(lod) + 1)
-
-
 def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
     c = np.clip(np.asarray(c, np.float64), 0.0, 1.0)
     return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
@@ -505,7 +500,7 @@ def _author_lod_variants(stage, plant, a: PlantAsset, tmpl, root: str, baked: bo
     for nm in names:
         vset.AddVariant(nm)
     for k, lod in enumerate([None] + list(a.lods)):
-        la = a if lod is None else _lod_asset(a, lod)
+        la = a.at_lod(k)
         vset.SetVariantSelection(names[k])
         with vset.GetVariantEditContext():
             mesh = UsdGeom.Mesh(stage.OverridePrim(tmpl.GetPath()))
@@ -625,7 +620,7 @@ def write_baked_layer(out: Path, a: PlantAsset, leaves: np.ndarray, lod_leaves: 
     # coarser levels of detail: one inactive group each (the main layer's LOD variant
     # deactivates the LOD0 leaves and activates its group)
     for k, lod in enumerate(a.lods if lod_leaves else [], start=1):
-        la = _lod_asset(a, lod)
+        la = a.at_lod(k)
         lv = _check_leaves(la, lod_leaves[k - 1]).astype(np.float32)
         tp = f"/BakedLeaves/{_baked_topology(k)}"
         cls = stage.CreateClassPrim(tp)

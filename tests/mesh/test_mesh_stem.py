@@ -7,7 +7,7 @@ import pytest
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.mesh import stem as M
 from leaffit_usd.mesh.stem import StemParams, build_stem, estimate_radii, stem_edges
-from leaffit_usd.mesh.synthetic import BRANCH_RGB, STEM_RGB, synthetic_stem_plant
+from samples.synthetic.mesh import BRANCH_RGB, STEM_RGB, synthetic_stem_plant
 from leaffit_usd.segment.result import Segmentation
 
 R_ROOT, R_PET = 0.012, 0.003
@@ -160,7 +160,7 @@ def test_leonardo_regulariser():
 
 def test_tree_skeleton_fallback():
     """Without stem Gaussians the segmentation's tree is the skeleton (the paper's stem)."""
-    from leaffit_usd.mesh.synthetic import synthetic_tree
+    from samples.synthetic.mesh import synthetic_tree
 
     seg, pts = synthetic_tree(n_branches=3, leaves_per_branch=2)
     st = build_stem(seg, pts, None, StemParams(skeleton="tree", root_radius=R_ROOT, petiole_radius=R_PET))
@@ -176,7 +176,7 @@ def test_tree_skeleton_fallback():
 
 
 def test_default_radii_from_capture():
-    from leaffit_usd.mesh.synthetic import synthetic_tree
+    from samples.synthetic.mesh import synthetic_tree
 
     seg, pts = synthetic_tree(n_branches=3, leaves_per_branch=2)
     root_r, _ = estimate_radii(seg, pts)
@@ -184,7 +184,7 @@ def test_default_radii_from_capture():
 
 
 def test_edges_exclude_leaf_interiors():
-    from leaffit_usd.mesh.synthetic import synthetic_tree
+    from samples.synthetic.mesh import synthetic_tree
 
     seg, _ = synthetic_tree(n_branches=3, leaves_per_branch=2)
     child, parent = stem_edges(seg)
@@ -228,7 +228,7 @@ def test_params_validation(plant, bad):
 
 
 def test_bad_tree_indices():
-    from leaffit_usd.mesh.synthetic import synthetic_tree
+    from samples.synthetic.mesh import synthetic_tree
 
     seg, pts = synthetic_tree()
     with pytest.raises(ParameterError):

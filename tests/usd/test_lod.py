@@ -9,6 +9,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 import synthetic as syn  # noqa: E402
 
 from leaffit_usd.mesh.result import StemMesh, TemplateLOD  # noqa: E402
+from leaffit_usd.runtime.evaluator import asset_leaves  # noqa: E402
 from leaffit_usd.usd import writer as W  # noqa: E402
 from leaffit_usd.usd.assemble import asset_from_results  # noqa: E402
 from leaffit_usd.usd.reader import read_stage, select_representation, select_variant  # noqa: E402
@@ -46,12 +47,17 @@ def lod_asset():
     return a, W.LeafTextures(t.front_texture, t.back_texture)
 
 
+def _write(out, a, tex, options=None):
+    W.write_stage(out, a, tex, options, leaves=asset_leaves(a, separate_sheets=True),
+                  lod_leaves=[asset_leaves(a.at_lod(k), separate_sheets=True) for k in (1, 2)])
+
+
 def test_lod_variants_author_each_level_and_validate(tmp_path, lod_asset):
     from pxr import Usd, UsdGeom
 
     a, tex = lod_asset
     out = tmp_path / "p.usda"
-    W.write_stage(out, a, tex, W.WriteOptions(baked=True))
+    _write(out, a, tex, W.WriteOptions(baked=True))
     stage = Usd.Stage.Open(str(out))
     root = stage.GetDefaultPrim()
     vset = root.GetVariantSets().GetVariantSet("LOD")
@@ -82,7 +88,7 @@ def test_lod_variants_author_each_level_and_validate(tmp_path, lod_asset):
 def test_lods_and_stem_colours_read_back(tmp_path, lod_asset):
     a, tex = lod_asset
     out = tmp_path / "p.usdc"
-    W.write_stage(out, a, tex)
+    _write(out, a, tex)
     b = read_stage(out)
     assert len(b.template_points) == len(a.template_points)    # LOD0 is what readers see
     assert len(b.lods) == 2
@@ -99,7 +105,7 @@ def test_stem_material_reads_vertex_colours(tmp_path, lod_asset):
 
     a, tex = lod_asset
     out = tmp_path / "p.usda"
-    W.write_stage(out, a, tex)
+    _write(out, a, tex)
     stage = Usd.Stage.Open(str(out))
     root = stage.GetDefaultPrim().GetPath()
     mat, _ = UsdShade.MaterialBindingAPI(stage.GetPrimAtPath(f"{root}/Stem")).ComputeBoundMaterial()
