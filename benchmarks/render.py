@@ -301,8 +301,12 @@ def main(argv=None) -> int:
     if "suite" in sets:
         plants += [("suite", d) for d in suite_plants(work / "suite")]
     if "paper8" in sets:
+        import importlib.util
+
         if not (SHARED / "make_plants.py").is_file():
             print(f"skipping paper8: {SHARED} is absent (the external plants are not part of the repo)")
+        elif importlib.util.find_spec("PIL") is None:
+            print("skipping paper8: the external generator needs Pillow (pip install pillow)")
         else:
             plants += [("paper8", d) for d in paper8_plants(work / "external")]
     if not (SHARED / "eval_deform.py").is_file():

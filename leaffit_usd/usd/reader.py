@@ -250,9 +250,9 @@ def _read_lods(stage, tmpl_prim, root, sheet_offset: float) -> list:
 
     from leaffit_usd.usd.asset import AssetLOD
 
-    vset = root.GetVariantSets().GetVariantSet("LOD") if root else None
-    if not vset or not vset.IsValid():
+    if not root or not root.GetVariantSets().HasVariantSet("LOD"):
         return []
+    vset = root.GetVariantSets().GetVariantSet("LOD")
     names = sorted((n for n in vset.GetVariantNames() if n.startswith("LOD") and n[3:].isdigit()
                     and int(n[3:]) > 0), key=lambda n: int(n[3:]))
     original = vset.GetVariantSelection()

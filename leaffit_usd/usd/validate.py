@@ -87,8 +87,9 @@ def usd_validation(stage) -> list[Finding]:
     root = stage.GetDefaultPrim()
     vset = root.GetVariantSets().GetVariantSet("leafRepresentation") if root else None
     lods = root.GetVariantSets().GetVariantSet("LOD") if root else None
-    reps = vset.GetVariantNames() if vset and vset.IsValid() else [None]
-    levels = lods.GetVariantNames() if lods and lods.IsValid() else [None]
+    sets = root.GetVariantSets() if root else None
+    reps = (vset.GetVariantNames() if sets and sets.HasVariantSet("leafRepresentation") else []) or [None]
+    levels = (lods.GetVariantNames() if sets and sets.HasVariantSet("LOD") else []) or [None]
     if len(reps) * len(levels) > 1:
         orig_rep = vset.GetVariantSelection() if reps != [None] else None
         orig_lod = lods.GetVariantSelection() if levels != [None] else None
@@ -365,7 +366,7 @@ def _check_baked(stage, root, L: int, add) -> None:
             from leaffit_usd.usd.reader import select_variant
 
             lods = root.GetVariantSets().GetVariantSet("LOD")
-            levels = lods.GetVariantNames() if lods and lods.IsValid() else [None]
+            levels = (lods.GetVariantNames() if root.GetVariantSets().HasVariantSet("LOD") else []) or [None]
             orig_lod = lods.GetVariantSelection() if levels != [None] else None
             for lod in levels:
                 if lod is not None:
