@@ -40,8 +40,8 @@ def cache_dir() -> Path:
 
 
 def _python_for(script: str, shared: Path) -> str:
-    if script != "helios_plants.py":
-        return sys.executable
+    """The generators need numpy, scipy, pillow and plyfile (and pyhelios3d for Helios): the venv
+    that ``helios_venv.sh`` makes has them all (ours has no pillow)."""
     out = subprocess.run(["bash", str(shared / "helios_venv.sh")], check=True, capture_output=True,
                          text=True)
     return out.stdout.strip().splitlines()[-1]

@@ -63,6 +63,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--sizes", nargs="*", type=int, default=[100_000, 1_000_000])
+    ap.add_argument("--modes", nargs="*", default=["up given", "up estimated"])
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/segment_time.json"))
     args = ap.parse_args(argv)
     rows = []
@@ -71,6 +72,8 @@ def main(argv=None):
         for n in args.sizes:
             ply, up = plant_file(n, tmp)
             for mode, u in (("up given", up), ("up estimated", None)):
+                if mode not in args.modes:
+                    continue
                 runs = [run_once(ply, u, tmp / "labels.npz") for _ in range(args.repeats)]
                 wall = float(np.median([r[0] for r in runs]))
                 cpu = float(np.median([r[1] for r in runs]))
