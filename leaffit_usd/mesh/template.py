@@ -265,6 +265,25 @@ def template_gaussians_local(cloud_working, fits):
     return means, cov, g.colors.astype(np.float64), g.opacities.astype(np.float64)
 
 
+def template_view_colors(cloud_working, fits) -> dict[bool, np.ndarray]:
+    """{from_below: (M, 3) float64 RGB in [0, 1]} of the template's Gaussians (the order of
+    :func:`template_gaussians_local`) as the front (False: camera above the leaf, looking down its
+    -Z) and back (True) textures see them: the SH, in the working frame, evaluated for the
+    camera -> Gaussian direction of each view (the DC colour alone for SH degree 0)."""
+    from leaffit_usd.splats.sh import eval_sh
+
+    row = _template_row(fits)
+    leaf = np.asarray(fits.leaf_to_working[row], np.float64)[:3, :3]
+    idx = np.asarray(fits.template_gaussians, np.int64)
+    idx = idx[(idx >= 0) & (idx < len(cloud_working))]
+    sh = cloud_working.sh[idx]
+    out = {}
+    for from_below, d_local in ((False, (0.0, 0.0, -1.0)), (True, (0.0, 0.0, 1.0))):
+        d = leaf @ np.asarray(d_local)
+        out[from_below] = np.clip(eval_sh(sh, d / np.linalg.norm(d)), 0.0, 1.0)
+    return out
+
+
 def _template_row(fits) -> int:
     rows = np.flatnonzero(np.asarray(fits.leaf_labels) == fits.template_label)
     if len(rows) == 0:
@@ -354,6 +373,9 @@ def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np
                   min_coverage: float = 0.6, supersample: int = 1):
     """Front and back RGBA float textures (H, W, 4) in [0, 1], straight alpha, row 0 = top.
 
+    Colours are view-dependent: each texture evaluates the Gaussians' SH (working frame) for its
+    own view direction, down onto the front and up onto the back (:func:`template_view_colors`).
+
     sheet_points, sheet_faces : the sheet (template frame, CCW from +Z). A capture of a leaf holds
         a layer of Gaussians on each side of the blade; each side is its own layer (Gaussians on
         that side of the sheet: signed offset along the closest face's normal) composited over
@@ -366,7 +388,8 @@ def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np
     """
     from leaffit_usd.splats.render import render_orthographic_np
 
-    means, cov, colors, opac = template_gaussians_local(cloud_working, fits)
+    means, cov, _, opac = template_gaussians_local(cloud_working, fits)
+    view_colors = template_view_colors(cloud_working, fits)  # view-dependent (SH) per side
     mask = rasterize_polygon(outline_xy, size, size, bounds)
     info = {}
     if len(means) == 0:
@@ -390,8 +413,8 @@ def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np
             z = np.zeros((size, size))
             return z[..., None].repeat(3, -1), z
         n = size * ss
-        r = render_orthographic_np(means[sel], cov[sel], colors[sel], opac[sel], n, n, bounds,
-                                   from_below=from_below)
+        r = render_orthographic_np(means[sel], cov[sel], view_colors[from_below][sel], opac[sel],
+                                   n, n, bounds, from_below=from_below)
         c = np.asarray(r.color, np.float64).reshape(size, ss, size, ss, 3).mean((1, 3))
         a = np.asarray(r.alpha, np.float64).reshape(size, ss, size, ss).mean((1, 3))
         return c, a

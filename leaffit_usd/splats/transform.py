@@ -9,6 +9,7 @@ import numpy as np
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.geometry.quaternion import matrix_to_quat, quat_multiply, quat_to_matrix
 from leaffit_usd.splats.cloud import GaussianCloud
+from leaffit_usd.splats.sh import rotate_sh
 
 
 def similarity_parts(m: np.ndarray, name: str = "m") -> tuple[float, np.ndarray, np.ndarray]:
@@ -43,10 +44,10 @@ def transform_cloud(cloud: GaussianCloud, m: np.ndarray, allow_affine: bool = Fa
     invertible affine map is accepted: covariances ``A S A^T`` are eigen-decomposed into new
     unit quaternions and scales (Gaussian axes are then re-sorted; exact in the covariance).
 
-    SH coefficients are NOT rotated: the view-dependent terms (degree >= 1) stay expressed in
-    the old frame's directions (the DC colour, which is what this tool uses, is unaffected).
-    Rotating them needs the Wigner D-matrices of each band; renderers of the transformed cloud
-    will show slightly wrong view-dependent highlights.
+    SH coefficients are rotated with the Gaussians (:func:`leaffit_usd.splats.sh.rotate_sh`, by
+    ``R``; for a general affine map by the rotation of its polar decomposition), so the colour
+    seen along a direction of the new frame is the colour seen along the matching direction
+    before; the DC term is unchanged.
 
     Returns a new cloud (float32 arrays); ``file_index``/``file_count`` are kept.
     """
@@ -62,7 +63,7 @@ def transform_cloud(cloud: GaussianCloud, m: np.ndarray, allow_affine: bool = Fa
     quats = quat_multiply(qr, cloud.quats.astype(np.float64)).astype(np.float32)
     log_scales = (cloud.log_scales.astype(np.float64) + np.log(s)).astype(np.float32)
     return GaussianCloud(means=means, log_scales=log_scales, quats=quats,
-                         opacity_logits=cloud.opacity_logits.copy(), sh=cloud.sh.copy(),
+                         opacity_logits=cloud.opacity_logits.copy(), sh=rotate_sh(cloud.sh, r),
                          extra={k: v.copy() for k, v in cloud.extra.items()},
                          file_index=cloud.file_index.copy(), file_count=cloud.file_count)
 
@@ -81,8 +82,11 @@ def _transform_affine(cloud: GaussianCloud, m: np.ndarray) -> GaussianCloud:
     cov = np.einsum("ij,njk,lk->nil", a, cov, a)
     w, v = np.linalg.eigh(cov)
     v[np.linalg.det(v) < 0, :, 0] *= -1.0  # proper rotations
+    u, _, vt = np.linalg.svd(a)
+    polar = u @ vt  # the rotation nearest ``a`` (a reflection if det(a) < 0: then no SH rotation)
+    sh = rotate_sh(cloud.sh, polar) if np.linalg.det(polar) > 0 else cloud.sh.copy()
     return GaussianCloud(
         means=means, log_scales=(0.5 * np.log(np.maximum(w, 1e-300))).astype(np.float32),
         quats=matrix_to_quat(v).astype(np.float32), opacity_logits=cloud.opacity_logits.copy(),
-        sh=cloud.sh.copy(), extra={k: v_.copy() for k, v_ in cloud.extra.items()},
+        sh=sh, extra={k: v_.copy() for k, v_ in cloud.extra.items()},
         file_index=cloud.file_index.copy(), file_count=cloud.file_count)

@@ -40,7 +40,12 @@ def test_transform_similarity_covariances_and_inverse():
     np.testing.assert_allclose(t.log_scales, c.log_scales + np.log(s), atol=1e-6)
     # unnormalised quaternions keep their length
     np.testing.assert_allclose(np.linalg.norm(t.quats, axis=1), np.linalg.norm(c.quats, axis=1), rtol=1e-6)
-    np.testing.assert_array_equal(t.sh, c.sh)  # SH left in the old frame (documented)
+    # SH rotate with the cloud: the colour seen along R d after equals the colour along d before
+    from leaffit_usd.splats.sh import eval_sh
+
+    d = np.random.default_rng(0).normal(size=(len(c), 3))
+    np.testing.assert_allclose(eval_sh(t.sh, d @ (a / s).T), eval_sh(c.sh, d), atol=2e-5)
+    np.testing.assert_array_equal(t.sh[:, 0], c.sh[:, 0])
     back = transform_cloud(t, np.linalg.inv(m))
     np.testing.assert_allclose(back.means, c.means, atol=1e-5)
     np.testing.assert_allclose(back.covariances(), c.covariances(), rtol=1e-4, atol=1e-12)
