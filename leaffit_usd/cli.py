@@ -13,6 +13,7 @@ import importlib
 import logging
 import os
 import pkgutil
+import re
 import sys
 
 from leaffit_usd import __version__
@@ -21,12 +22,49 @@ from leaffit_usd.errors import UserError
 log = logging.getLogger("leaffit_usd")
 
 
+# A value that starts with '-' but is not an option: a negative number or a list of numbers
+# ("-1.87,1.50,2.05", "-1e-3") or a signed axis ("-y"). argparse only takes plain negative numbers
+# ("-1", "-0.5") as values; anything else that starts with '-' it reads as an unknown option and
+# then refuses "--root -1.87,1.50,2.05" with "expected one argument".
+_NUM = r"(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
+_DASH_VALUE = re.compile(rf"-(?:{_NUM}(?:\s*,\s*[+-]?{_NUM})*|[xyzXYZ])")
+
+
+def join_dash_values(parser: argparse.ArgumentParser, args: list[str]) -> list[str]:
+    """``args`` with every ``--opt VALUE`` whose VALUE looks like a negative number, a list of
+    numbers starting with a negative one, or a signed axis rewritten as ``--opt=VALUE``.
+
+    Only options of ``parser`` that take exactly one value are joined (a flag, or a token that is
+    itself one of the parser's options, is left alone), unique abbreviations included (``--u -y``);
+    nothing after ``--`` is touched. This is how every command accepts ``--root -1.87,1.50,2.05``
+    and ``--up -y`` (the ``=`` form keeps working).
+    """
+    table = getattr(parser, "_option_string_actions", {})  # argparse's option-string -> action map
+    out, i = [], 0
+    while i < len(args):
+        tok = args[i]
+        if tok == "--":
+            out.extend(args[i:])
+            break
+        if (i + 1 < len(args) and tok.startswith("-") and "=" not in tok
+                and _DASH_VALUE.fullmatch(args[i + 1]) and args[i + 1] not in table):
+            action = table.get(tok)
+            if action is None and tok.startswith("--"):
+                hits = {table[s] for s in table if s.startswith(tok) and s.startswith("--")}
+                action = hits.pop() if len(hits) == 1 else None
+            if action is not None and action.option_strings and action.nargs is None:
+                out.append(f"{tok}={args[i + 1]}")
+                i += 2
+                continue
+        out.append(tok)
+        i += 1
+    return out
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse that reports usage errors as one line and exit code 2."""
 
     def parse_known_args(self, args=None, namespace=None):
-        from leaffit_usd.commands._args import join_dash_values
-
         args = sys.argv[1:] if args is None else list(args)
         return super().parse_known_args(join_dash_values(self, args), namespace)
 

@@ -1,7 +1,7 @@
 """``--root`` and ``--up`` take negative values as separate arguments in every command.
 
 argparse alone refuses ``--root -1.87,1.50,2.05`` ("expected one argument": it reads the value as
-an unknown option); :func:`leaffit_usd.commands._args.join_dash_values` joins such values to
+an unknown option); :func:`leaffit_usd.cli.join_dash_values` joins such values to
 their option. Each command that takes ``--root``/``--up`` is run through ``cli.main``.
 """
 import json
@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from leaffit_usd.cli import build_parser, main
-from leaffit_usd.commands._args import join_dash_values
+from leaffit_usd.cli import build_parser, join_dash_values, main
 from leaffit_usd.splats import write_ply
 from leaffit_usd.splats.cloud import GaussianCloud
 from tests.segment.synth import make_plant
