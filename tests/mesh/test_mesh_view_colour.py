@@ -1,7 +1,7 @@
 """The texture bake evaluates view-dependent colour (SH) for each texture's own view direction."""
 import numpy as np
 
-from leaffit_usd.mesh.synthetic import synthetic_leaf
+from samples.synthetic.mesh import synthetic_leaf
 from leaffit_usd.mesh.template import MeshParams, build_template_mesh
 from leaffit_usd.splats.sh import SH_C1
 
