@@ -94,3 +94,12 @@ def test_segment_with_negative_up_and_root(tmp_path, capsys):
     z = np.load(out)
     assert int(z["root_index"]) == p.root_index
     assert z["labels"].max() == 3
+
+
+def test_isolate_and_convert_parse_negative_up_and_root():
+    """Every command with --up/--root, at the parser (isolate's run needs a real capture)."""
+    p = build_parser()
+    a = p.parse_args(["isolate", "a.ply", "-o", "b.ply", "--up", "-0.1,-1,0"])
+    assert a.up == "-0.1,-1,0"
+    a = p.parse_args(["convert", "a.ply", "-o", "b.usda", "--up", "-y", "--root", "-1.87,1.50,2.05"])
+    assert (a.up, a.root) == ("-y", "-1.87,1.50,2.05")
