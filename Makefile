@@ -5,6 +5,9 @@ PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+# the Khronos glTF validator (npm), used by the glTF export tests
+GLTF_VALIDATOR := build/gltf-validator/node_modules/gltf-validator/package.json
+GLTF_VALIDATOR_VERSION := 2.0.0-dev.3.10
 DEMO_IN  ?= samples/plants/rubber_tree.ply
 DEMO_OUT ?= out/demo
 # the sample plants are generated here, not kept in git (deterministic: same bytes every time)
@@ -12,7 +15,7 @@ SAMPLES  := samples/plants/.generated
 
 .PHONY: demo test setup samples bench clean dcc-check
 
-setup: $(STAMP)
+setup: $(STAMP) $(GLTF_VALIDATOR)
 
 $(STAMP): pyproject.toml scripts/setup_system.sh
 	./scripts/setup_system.sh
@@ -30,7 +33,11 @@ samples: $(SAMPLES)
 demo: $(STAMP) $(SAMPLES)
 	$(PY) -m leaffit_usd.demo $(DEMO_IN) $(DEMO_OUT)
 
-test: $(STAMP) $(SAMPLES)
+$(GLTF_VALIDATOR): scripts/setup_system.sh
+	npm install --prefix build/gltf-validator --no-audit --no-fund --silent gltf-validator@$(GLTF_VALIDATOR_VERSION)
+	touch $(GLTF_VALIDATOR)
+
+test: $(STAMP) $(SAMPLES) $(GLTF_VALIDATOR)
 	$(PY) -m pytest -q -p no:cacheprovider
 
 bench: $(STAMP) $(SAMPLES)

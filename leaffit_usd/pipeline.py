@@ -53,6 +53,9 @@ class ConvertOptions:
     keep_scene : skip plant isolation (the input is already a trimmed plant)
     crop : "box:X0,Y0,Z0,X1,Y1,Z1" or "sphere:CX,CY,CZ,R" (input frame): keep only that region
     isolate : ``IsolateParams`` of the isolation stage
+    tint : measure each leaf's colour against the template texture (``mesh.appearance``) and
+        write it (USD ``primvars:leaffit:tint``, glTF ``COLOR_0``)
+    instanced : glTF output only: template + EXT_mesh_gpu_instancing instead of evaluated leaves
     """
 
     up: np.ndarray | None = None
@@ -72,6 +75,8 @@ class ConvertOptions:
     keep_scene: bool = False
     crop: str | None = None
     isolate: IsolateParams = field(default_factory=IsolateParams)
+    tint: bool = True
+    instanced: bool = False
 
 
 def _to_dict(p) -> dict:
@@ -253,7 +258,8 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     from leaffit_usd.splats.transform import transform_cloud
     from leaffit_usd.usd.assemble import DEFAULT_SHEET_OFFSET, asset_from_results
     from leaffit_usd.runtime.evaluator import asset_leaves
-    from leaffit_usd.usd.writer import LeafTextures, write_stage
+    from leaffit_usd.export.gltf import GLTF_FORMATS, GltfOptions, write_gltf
+    from leaffit_usd.usd.writer import LeafTextures, WriteResult, write_stage
 
     o = options or ConvertOptions()
     t_start = time.perf_counter()
@@ -266,7 +272,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
 
     seg_p, fit_p, mesh_p, stem_p = o.segment, o.fit, o.mesh, o.stem
 
-    T = _Timer(8)
+    T = _Timer(9 if o.tint else 8)
     with T.stage("load", f"loading {input_path.name}"):
         cloud_in = load_cloud(input_path)
         sha = file_sha256(input_path)
@@ -288,6 +294,11 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         template = build_template_mesh(cw, fits, mesh_p)
     with T.stage("stem", "building the stem"):
         stem = build_stem(seg, pts, fits, stem_p, colors=cw.colors)
+    tints = None
+    if o.tint:
+        from leaffit_usd.mesh.appearance import measure_leaf_tints
+        with T.stage("tint", "measuring per-leaf colour (tint)"):
+            tints = measure_leaf_tints(cw, np.asarray(seg.labels), fits, template)
     params = {
         "segment": {**_to_dict(seg_p), "labels_file": None if o.labels is None else str(o.labels)},
         "edits": None if o.edits is None else str(o.edits),
@@ -303,14 +314,25 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
             sheet_offset=DEFAULT_SHEET_OFFSET if o.sheet_offset is None else float(o.sheet_offset),
             input_sha256=sha, params=params,
             extra_metadata={"input_name": input_path.name})
-        result = write_stage(output_path, asset,
-                             LeafTextures(template.front_texture, template.back_texture), o.write,
-                             leaves=asset_leaves(asset, separate_sheets=True),
-                             lod_leaves=[asset_leaves(asset.at_lod(k), separate_sheets=True)
-                                         for k in range(1, len(asset.lods) + 1)])
+        if tints is not None:
+            asset.tints = tints.tints
+        textures = LeafTextures(template.front_texture, template.back_texture)
+        if output_path.suffix.lower() in GLTF_FORMATS:
+            g = write_gltf(output_path, asset, textures, GltfOptions(
+                instanced=o.instanced, texture_format=o.write.texture_format,
+                texture_max_size=int(o.write.texture_max_size), tint=o.tint))
+            result = WriteResult(path=output_path, files={"gltf": output_path}, sizes={"gltf": g.bytes})
+        else:
+            result = write_stage(output_path, asset, textures, o.write,
+                                 leaves=asset_leaves(asset, separate_sheets=True),
+                                 lod_leaves=[asset_leaves(asset.at_lod(k), separate_sheets=True)
+                                             for k in range(1, len(asset.lods) + 1)])
 
     report = _report(input_path, output_path, sha, result, {**T.timings, "total": round(
         time.perf_counter() - t_start, 4)}, cloud, cloud_in, iso, fits, template, asset, frame, root_index)
+    report["tint"] = None if tints is None else {
+        "per_leaf": np.round(tints.tints, 4).tolist(), "samples": tints.samples.tolist(),
+        "space": "linear RGB gain on the template texture"}
     all_bytes = report["sizes"]["output_with_sidecars_bytes"]
     log.info("wrote %s (%d file(s), %.1f KB; input %.1f KB, ratio %.1fx) in %.1f s", output_path,
              len(result.files), all_bytes / 1024, report["sizes"]["input_bytes"] / 1024,
@@ -320,10 +342,12 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
 
 def _check_options(o: ConvertOptions, output_path: Path) -> None:
     """Every option checked before the long run (UserError subclasses)."""
+    from leaffit_usd.export.gltf import GLTF_FORMATS
     from leaffit_usd.usd.writer import FORMATS
 
-    if output_path.suffix.lower() not in FORMATS:
-        raise ParameterError("-o/--output", f"a path ending in {', '.join(FORMATS)}", str(output_path))
+    if output_path.suffix.lower() not in FORMATS + GLTF_FORMATS:
+        raise ParameterError("-o/--output", f"a path ending in {', '.join(FORMATS + GLTF_FORMATS)}",
+                             str(output_path))
     if str(o.up_axis).upper() not in ("Y", "Z"):
         raise ParameterError("--up-axis", "Y or Z", o.up_axis)
     o.write.validate()

@@ -11,14 +11,16 @@ background and floaters removed; the table normal and the stem base at the soil 
 -> fit the template leaf to every leaf (MLS) -> template mesh + textures + stem -> USD stage.
 
 Outputs .usda / .usdc (textures in textures/ and the baked-leaves payload beside the stage) or
-.usdz (textures packed; the baked payload only with --baked yes). Paper defaults where the paper
+.usdz (textures packed; the baked payload only with --baked yes), or glTF 2.0 .glb / .gltf
+(the evaluated leaves + stem, metres, +Y up; --instanced: template + GPU instancing). Paper defaults where the paper
 is right (--paper-rules, --paper-fit restore it where we differ); every parameter is in working
 units (root at the origin, up +Z, plant height 1). A failed conversion leaves no output behind.
 
 examples:
   leaffit-usd convert plant.ply -o plant.usda
   leaffit-usd convert plant.ply -o plant.usdz --height 0.45 --up +y --report report.json
-  leaffit-usd convert plant.ply -o plant.usdc --labels labels.npz -K 16 --steps 100"""
+  leaffit-usd convert plant.ply -o plant.usdc --labels labels.npz -K 16 --steps 100
+  leaffit-usd convert plant.ply -o plant.glb --height 0.45"""
 ORDER = 10
 
 
@@ -26,7 +28,7 @@ def add_arguments(p) -> None:
     p.add_argument("input", metavar="INPUT",
                    help="3DGS capture: INRIA .ply, .compressed.ply, .spz, .sog, .splat or USD "
                         "ParticleField3DGaussianSplat (see README, input formats)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output stage (.usda, .usdc, .usd or .usdz)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output stage (.usda, .usdc, .usd or .usdz) or glTF (.glb, .gltf)")
     p.add_argument("--report", metavar="R.json", help="write timings, counts, sizes and fit errors as JSON")
     add_options(p)
 
@@ -85,6 +87,8 @@ def add_options(p) -> None:
     g.add_argument("--baked", choices=["auto", "yes", "no"], default="auto",
                    help="baked-leaves payload (variant leafRepresentation=baked) for tools without the "
                         "deformer: auto = beside .usda/.usdc, not packed into .usdz (default)")
+    from leaffit_usd.commands.export import add_gltf_arguments
+    add_gltf_arguments(p)
 
 
 def options_from_args(args):
@@ -114,7 +118,8 @@ def options_from_args(args):
         write=WriteOptions(texture_format=args.texture_format, texture_max_size=args.texture_size,
                            baked={"auto": "auto", "yes": True, "no": False}[args.baked]),
         up_axis=args.up_axis.upper(), meters_per_unit=args.meters_per_unit, height_m=args.height,
-        keep_scene=bool(args.keep_scene), crop=args.crop)
+        keep_scene=bool(args.keep_scene), crop=args.crop, tint=not args.no_tint,
+        instanced=args.instanced)
 
 
 def run(args) -> int:

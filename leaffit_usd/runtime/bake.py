@@ -101,7 +101,7 @@ def write_baked_usd(path, baked: BakedLeaves, asset, source=None, name: str | No
     """
     from pxr import Kind, Sdf, Tf, Usd, UsdGeom, UsdShade, Vt
 
-    from leaffit_usd.usd.writer import STEM_COLOR, make_material
+    from leaffit_usd.usd.writer import STEM_COLOR, make_material, set_leaf_tint
 
     path = Path(path)
     L = baked.n_leaves
@@ -139,8 +139,12 @@ def write_baked_usd(path, baked: BakedLeaves, asset, source=None, name: str | No
         looks = f"{root}/Looks"
         UsdGeom.Scope.Define(stage, looks)
         green = (0.1, 0.35, 0.08)
-        mats = [make_material(stage, f"{looks}/LeafFront", tex(asset.front_texture) or None, green),
-                make_material(stage, f"{looks}/LeafBack", tex(asset.back_texture) or None, green)]
+        tints = getattr(asset, "tints", None)
+        tints = tints if tints is not None and len(tints) == L else None
+        mats = [make_material(stage, f"{looks}/LeafFront", tex(asset.front_texture) or None, green,
+                              tint=tints is not None),
+                make_material(stage, f"{looks}/LeafBack", tex(asset.back_texture) or None, green,
+                              tint=tints is not None)]
         stem_mat = make_material(stage, f"{looks}/Stem", None, STEM_COLOR)
         UsdGeom.Scope.Define(stage, f"{root}/Leaves")
         counts = Vt.IntArray.FromNumpy(np.full(len(faces_t), 3, np.int32))
@@ -164,6 +168,8 @@ def write_baked_usd(path, baked: BakedLeaves, asset, source=None, name: str | No
                              UsdGeom.Tokens.vertex).Set(uvs)
             pv.CreatePrimvar("leaffit:leafLabel", Sdf.ValueTypeNames.Int,
                              UsdGeom.Tokens.constant).Set(int(baked.leaf_labels[j]))
+            if tints is not None:
+                set_leaf_tint(mesh, tints[j])
             for s, (sub_name, mat) in enumerate(zip(("front", "back"), mats)):
                 sub = UsdGeom.Subset.CreateGeomSubset(mesh, sub_name, UsdGeom.Tokens.face,
                                                       subsets[s], "materialBind",

@@ -34,6 +34,8 @@ class PlantAsset:
     stem_colors : (P, 3) float32 sRGB vertex colours of the stem (from its Gaussians), or None
     lods : coarser levels of detail, each an :class:`AssetLOD` (LOD1, LOD2, ...); the fields
         above are LOD0
+    tints : (L, 3) float32 or None, per-leaf linear-RGB gain multiplied into the template texture
+        (``mesh.appearance``; USD ``primvars:leaffit:tint``, glTF ``COLOR_0``); None = no tint
     """
 
     template_points: np.ndarray
@@ -57,6 +59,7 @@ class PlantAsset:
     metadata: dict = field(default_factory=dict)
     stem_colors: np.ndarray | None = None
     lods: list = field(default_factory=list)
+    tints: np.ndarray | None = None
 
     @property
     def n_leaves(self) -> int:

@@ -1,7 +1,8 @@
 """USD stage -> PlantAsset (the inverse of ``usd.writer``; layout in docs/usd_layout.md).
 
 Works without the schema plug-in too: every deformer value is read from authored attributes
-(by name), never from schema fallbacks. The baked-leaves payload is not loaded.
+(by name), never from schema fallbacks. The geometry payload is loaded; the baked-leaves payload
+is not composed (the 'deformer' variant is selected).
 """
 from __future__ import annotations
 
@@ -18,8 +19,9 @@ from leaffit_usd.usd import schema as S
 from leaffit_usd.usd.asset import PlantAsset, offset_sheets
 
 
-def open_stage(path, load_payloads: bool = False):
-    """Open a stage read-only-ish (payloads unloaded by default). Raises InputFileError."""
+def open_stage(path, load_payloads: bool = True):
+    """Open a stage (payloads loaded: the plant's geometry is one; the 'baked' variant's payload
+    is composed only when that variant is selected). Raises InputFileError."""
     from pxr import Tf, Usd
 
     p = Path(path)
@@ -160,6 +162,12 @@ def read_stage_object(stage, path="<stage>") -> PlantAsset:
         ids = inst.GetIdsAttr().Get()
         labels = np.asarray(ids, np.int32) if ids is not None and len(ids) == L else np.arange(1, L + 1, dtype=np.int32)
 
+    tint_pv = UsdGeom.PrimvarsAPI(inst_prim).GetPrimvar("leaffit:tint")
+    tint_v = tint_pv.Get() if tint_pv and tint_pv.HasAuthoredValue() else None
+    tints = _np(tint_v, np.float32, (3,)) if tint_v is not None else None
+    if tints is not None and len(tints) != L:
+        tints = None
+
     root = stage.GetDefaultPrim() or inst_prim.GetParent()
     stem_pts, stem_faces = _read_stem(root)
     metadata, asset_to_input = _read_metadata(stage, root)
@@ -173,7 +181,7 @@ def read_stage_object(stage, path="<stage>") -> PlantAsset:
         sigma=float(_get(inst_prim, S.ATTR_SIGMA, 0.1)), reg=float(_get(inst_prim, S.ATTR_REG, 0.01)),
         stem_points=stem_pts, stem_faces=stem_faces, asset_to_input=asset_to_input,
         front_texture=front_tex, back_texture=back_tex, metadata=metadata,
-        stem_colors=_stem_colors(root, len(stem_pts)), lods=_read_lods(stage, tmpl_prim, root, off),
+        tints=tints, stem_colors=_stem_colors(root, len(stem_pts)), lods=_read_lods(stage, tmpl_prim, root, off),
     )
 
 

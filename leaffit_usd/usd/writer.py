@@ -2,7 +2,8 @@
 
 ::
 
-    /<Plant>                      Xform, defaultPrim, kind = component, customData["leaffit"]
+    /<Plant>                      Xform, defaultPrim, kind = component, assetInfo, customData;
+                                  payload @./<name>.geom.usdc@ (everything below but BakedLeaves)
         Looks/                    Scope
             LeafFront, LeafBack   Material: UsdPreviewSurface <- UsdUVTexture(file) <- primvars:st
             Stem                  Material: UsdPreviewSurface, constant colour
@@ -117,8 +118,9 @@ def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
         and the baked payload. Required when the asset has leaves (this module only writes).
     lod_leaves : the same for each of ``asset.lods`` ((L, V_k, 3) each, from that level's
         template), or None: then the baked representation shows LOD0's leaves at every level.
-    For .usda/.usdc the textures go to ``textures/<name>.front.<ext>`` and the baked payload to
-    ``<name>.baked.usdc`` beside the stage (relative paths); for .usdz all of them are packed.
+    For .usda/.usdc the textures go to ``textures/<name>.front.<ext>``, the geometry payload to
+    ``<name>.geom.usdc`` and the baked payload to ``<name>.baked.usdc`` beside the stage (relative
+    paths); for .usdz all of them are packed.
     Returns a :class:`WriteResult`. Raises ParameterError for an unknown extension or option.
     """
     options = options or WriteOptions()
@@ -152,9 +154,11 @@ def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
             write_baked_layer(tmp / baked_rel, asset, leaves, lod_leaves)
             rel["baked"] = baked_rel
         main_rel = f"{stem}.usdc" if ext == ".usdz" else path.name
+        rel["geometry"] = f"{stem}.geom.usdc"
         has_alpha = textures is not None and options.texture_format == "png"
         _write_main_layer(tmp / main_rel, asset, leaves, name, front_tex, back_tex, has_alpha,
-                          "./" + baked_rel if baked_rel else None, bool(lod_leaves))
+                          "./" + baked_rel if baked_rel else None, bool(lod_leaves),
+                          tmp / rel["geometry"], "./" + rel["geometry"])
         result = WriteResult(path=path)
         if ext == ".usdz":
             pkg = tmp / path.name
@@ -247,8 +251,16 @@ def _write_texture(path: Path, img: np.ndarray, options: WriteOptions) -> None:
 # main layer
 
 
-def make_material(stage, path: str, texture: str | None, color, has_alpha: bool = False):
-    """UsdPreviewSurface material; with a texture, diffuseColor (and opacity) read it via primvars:st."""
+TINT_PRIMVAR = "leaffit:tint"   # color3f per instance (PointInstancer) / per leaf Mesh (baked)
+
+
+def make_material(stage, path: str, texture: str | None, color, has_alpha: bool = False,
+                  tint: bool = False):
+    """UsdPreviewSurface material; with a texture, diffuseColor (and opacity) read it via primvars:st.
+
+    tint : multiply the texture by the per-leaf primvar ``leaffit:tint`` (color3f, linear): a
+        UsdPrimvarReader_float3 (fallback (1, 1, 1)) feeds UsdUVTexture's ``scale``, the one
+        multiplication UsdPreviewSurface networks have (rgb = texel * scale + bias)."""
     from pxr import Gf, Sdf, UsdShade
 
     mat = UsdShade.Material.Define(stage, path)
@@ -272,12 +284,25 @@ def make_material(stage, path: str, texture: str | None, color, has_alpha: bool 
     tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
     tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
     tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+    if tint:
+        tr = UsdShade.Shader.Define(stage, f"{path}/TintReader")
+        tr.CreateIdAttr("UsdPrimvarReader_float3")
+        tr.CreateInput("varname", Sdf.ValueTypeNames.String).Set(TINT_PRIMVAR)
+        tr.CreateInput("fallback", Sdf.ValueTypeNames.Float3).Set(Gf.Vec3f(1.0, 1.0, 1.0))
+        tr.CreateOutput("result", Sdf.ValueTypeNames.Float3)
+        tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).ConnectToSource(tr.ConnectableAPI(), "result")
     surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
     if has_alpha:
         tex.CreateOutput("a", Sdf.ValueTypeNames.Float)
         surf.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(tex.ConnectableAPI(), "a")
         surf.CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(0.5)
     return mat
+
+
+def single_sheet(a: PlantAsset) -> bool:
+    """True when the template has faces on one side only: that sheet must be drawn doubleSided."""
+    sides = np.unique(_face_sides(a)) if len(a.template_faces) else np.zeros(0)
+    return len(sides) < 2
 
 
 def _face_sides(a: PlantAsset) -> np.ndarray:
@@ -291,7 +316,7 @@ def _author_template_mesh(stage, path: str, a: PlantAsset, looks: str):
     mesh = UsdGeom.Mesh.Define(stage, path)
     mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
     mesh.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
-    mesh.CreateDoubleSidedAttr(False)
+    mesh.CreateDoubleSidedAttr(single_sheet(a))
     _set_template_geometry(mesh, a)
     _bind_sides(stage, mesh, _face_sides(a), looks)
     mesh.GetPrim().SetCustomDataByKey("leaffit:role", "template")
@@ -382,27 +407,35 @@ def _bind_sides(stage, mesh, face_side: np.ndarray, looks: str | None):
     UsdGeom.Subset.SetFamilyType(mesh, "materialBind", UsdGeom.Tokens.partition)
 
 
-def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, front_tex: str, back_tex: str,
-                      has_alpha: bool, baked_rel: str | None, baked_lods: bool = False) -> None:
-    from pxr import Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
+def _stage_units(stage, a: PlantAsset) -> None:
+    from pxr import UsdGeom
 
-    stage = Usd.Stage.CreateNew(str(out))
     up = str(a.metadata.get("up_axis", "Y")).upper()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
     UsdGeom.SetStageMetersPerUnit(stage, float(a.metadata.get("meters_per_unit", 1.0)))
+
+
+def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, front_tex: str,
+                      back_tex: str, has_alpha: bool, baked_rel: str | None, baked_lods: bool,
+                      geom_out: Path, geom_rel: str) -> None:
+    """Two layers: ``geom_out`` (Looks, Leaves, Stem under /<name>, its defaultPrim) and the root
+    layer ``out``: the /<name> interface prim (kind, assetInfo, customData, variant sets) whose
+    payload ``geom_rel`` brings the geometry in, so a scene can load the plant lazily. Variant
+    opinions (LOD, leafRepresentation) in the root layer are stronger than the payload's."""
+    from pxr import Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
+
+    geo = stage = Usd.Stage.CreateNew(str(geom_out))
+    _stage_units(stage, a)
     root = f"/{name}"
-    plant = UsdGeom.Xform.Define(stage, root).GetPrim()
-    stage.SetDefaultPrim(plant)
-    Usd.ModelAPI(plant).SetKind(Kind.Tokens.component)
-    Usd.ModelAPI(plant).SetAssetName(name)
-    Usd.ModelAPI(plant).SetAssetVersion(str(a.metadata.get("tool_version", leaffit_usd.__version__)))
-    plant.SetCustomDataByKey("leaffit", _custom_data(a))
+    stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, root).GetPrim())
+    tints = _tints(a)
 
     looks = f"{root}/Looks"
     UsdGeom.Scope.Define(stage, looks)
     green = (0.1, 0.35, 0.08)
-    make_material(stage, f"{looks}/LeafFront", front_tex or None, green, has_alpha)
-    make_material(stage, f"{looks}/LeafBack", back_tex or None, green, has_alpha)
+    tinted = tints is not None
+    make_material(stage, f"{looks}/LeafFront", front_tex or None, green, has_alpha, tinted)
+    make_material(stage, f"{looks}/LeafBack", back_tex or None, green, has_alpha, tinted)
     stem_mat = make_stem_material(stage, f"{looks}/Stem", a)
 
     # the leaves: one template Mesh prototype + a PointInstancer with the MLS deformer
@@ -424,6 +457,9 @@ def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, f
     tg.Set(vec3f_array(a.targets))
     lab = pv.CreatePrimvar("leaffit:leafLabel", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex)
     lab.Set(Vt.IntArray.FromNumpy(np.asarray(a.leaf_labels, np.int32)))
+    if tinted:
+        pv.CreatePrimvar(TINT_PRIMVAR, Sdf.ValueTypeNames.Color3fArray,
+                         UsdGeom.Tokens.vertex).Set(vec3f_array(tints))
     inst.CreateExtentAttr(extent(leaves))
     ip = inst.GetPrim()
     ip.SetCustomDataByKey("leaffit:role", "leaves")
@@ -446,6 +482,21 @@ def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, f
         UsdShade.MaterialBindingAPI.Apply(stem.GetPrim()).Bind(stem_mat)
         stem.GetPrim().SetCustomDataByKey("leaffit:role", "stem")
 
+    stage.GetRootLayer().documentation = (
+        f"LeafFit plant geometry: the payload of ./{out.name} (open that file)")
+    stage.GetRootLayer().Save()
+
+    # the root layer: the asset's interface; the geometry above arrives through a payload
+    stage = Usd.Stage.CreateNew(str(out))
+    _stage_units(stage, a)
+    plant = UsdGeom.Xform.Define(stage, root).GetPrim()
+    stage.SetDefaultPrim(plant)
+    Usd.ModelAPI(plant).SetKind(Kind.Tokens.component)
+    Usd.ModelAPI(plant).SetAssetName(name)
+    Usd.ModelAPI(plant).SetAssetVersion(str(a.metadata.get("tool_version", leaffit_usd.__version__)))
+    Usd.ModelAPI(plant).SetAssetIdentifier(Sdf.AssetPath(f"./{out.name}"))
+    plant.SetCustomDataByKey("leaffit", _custom_data(a))
+    plant.GetPayloads().AddPayload(geom_rel)
     # explicit leaves for tools without the deformer: a variant whose geometry is a payload file
     if baked_rel:
         vset = plant.GetVariantSets().AddVariantSet("leafRepresentation")
@@ -458,7 +509,7 @@ def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, f
             baked.GetPrim().SetCustomDataByKey("leaffit:role", "baked")
             # deactivate (not hide) the instancer: Blender 4.2 crashes importing an invisible
             # PointInstancer next to other meshes; readers force the 'deformer' variant
-            inst.GetPrim().SetActive(False)
+            stage.OverridePrim(inst_path).SetActive(False)
             for k in range(len(a.lods) + 1 if baked_lods else 1):
                 topo = stage.OverridePrim(f"{root}/BakedLeaves/{_baked_topology(k)}")
                 for side, mat in (("front", "LeafFront"), ("back", "LeafBack")):
@@ -584,6 +635,27 @@ def _flat_params(params, prefix="") -> dict:
 # baked payload layer
 
 
+def _tints(a: PlantAsset) -> np.ndarray | None:
+    """(L, 3) float32 per-leaf tint, or None when the asset has none (or a wrong count)."""
+    t = getattr(a, "tints", None)
+    if t is None:
+        return None
+    t = np.asarray(t, np.float32).reshape(-1, 3)
+    return t if len(t) == a.n_leaves and np.isfinite(t).all() else None
+
+
+def set_leaf_tint(mesh, tint) -> None:
+    """Author one leaf Mesh's tint: ``primvars:leaffit:tint`` (read by the leaf materials) and
+    ``primvars:displayColor`` (what viewers without our materials, e.g. Blender's colour
+    attribute, show), both constant color3f, linear RGB."""
+    from pxr import Gf, Sdf, UsdGeom
+
+    c = Gf.Vec3f(*map(float, np.asarray(tint, np.float64).reshape(3)))
+    pv = UsdGeom.PrimvarsAPI(mesh)
+    pv.CreatePrimvar(TINT_PRIMVAR, Sdf.ValueTypeNames.Color3f, UsdGeom.Tokens.constant).Set(c)
+    UsdGeom.Gprim(mesh.GetPrim()).CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set([c])
+
+
 def write_baked_layer(out: Path, a: PlantAsset, leaves: np.ndarray, lod_leaves: list | None = None) -> None:
     """The baked payload layer: one Mesh per leaf (asset frame), sharing topology/UVs/subsets
     through an inherited class. leaves : (L, V, 3) as :func:`write_stage` takes them.
@@ -594,6 +666,7 @@ def write_baked_layer(out: Path, a: PlantAsset, leaves: np.ndarray, lod_leaves: 
     from pxr import Sdf, Usd, UsdGeom, Vt
 
     leaves = _check_leaves(a, leaves)
+    tints = _tints(a)
     stage = Usd.Stage.CreateNew(str(out))
     up = str(a.metadata.get("up_axis", "Y")).upper()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
@@ -605,7 +678,7 @@ def write_baked_layer(out: Path, a: PlantAsset, leaves: np.ndarray, lod_leaves: 
     topo.SetTypeName("Mesh")
     mesh = UsdGeom.Mesh(topo)
     mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-    mesh.CreateDoubleSidedAttr(False)
+    mesh.CreateDoubleSidedAttr(single_sheet(a))
     mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(a.template_faces), 3, np.int32)))
     mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(a.template_faces, np.int32).ravel()))
     st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
@@ -617,6 +690,8 @@ def write_baked_layer(out: Path, a: PlantAsset, leaves: np.ndarray, lod_leaves: 
         leaf.CreatePointsAttr(vec3f_array(leaves[j]))
         leaf.CreateExtentAttr(extent(leaves[j]))
         leaf.GetPrim().SetCustomDataByKey("leaffit:leafLabel", int(a.leaf_labels[j]))
+        if tints is not None:
+            set_leaf_tint(leaf, tints[j])
     # coarser levels of detail: one inactive group each (the main layer's LOD variant
     # deactivates the LOD0 leaves and activates its group)
     for k, lod in enumerate(a.lods if lod_leaves else [], start=1):

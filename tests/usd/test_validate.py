@@ -15,7 +15,14 @@ def _edit(path, fn):
 
     stage = Usd.Stage.Open(str(path))
     fn(stage, stage.GetDefaultPrim().GetPath())
-    stage.GetRootLayer().Save()
+    for layer in stage.GetUsedLayers():   # the root layer and the geometry payload
+        if layer.dirty and not layer.anonymous:
+            layer.Save()
+
+
+def _geom_layer(s, r):
+    """The layer holding the plant's geometry (the payload), where removals must happen."""
+    return s.GetPrimAtPath(r.AppendChild("Leaves")).GetPrimStack()[0].layer
 
 
 def _no_default(s, r):
@@ -67,7 +74,9 @@ def _sigma(s, r):
 
 
 def _no_st(s, r):
-    s.GetPrimAtPath(r.AppendPath("Leaves/Prototypes/TemplateLeaf")).RemoveProperty("primvars:st")
+    layer = _geom_layer(s, r)      # a payload is not in the local layer stack: edit it with Sdf
+    prim = layer.GetPrimAtPath(r.AppendPath("Leaves/Prototypes/TemplateLeaf"))
+    prim.RemoveProperty(prim.properties["primvars:st"])
 
 
 def _unbind(s, r):
@@ -87,7 +96,7 @@ def _provenance(s, r):
 def _float_orient(s, r):
     # re-type 'orientations' as quatf[] at the Sdf level (the schema says quath[])
     from pxr import Sdf
-    spec = s.GetRootLayer().GetAttributeAtPath(r.AppendPath("Leaves.orientations"))
+    spec = _geom_layer(s, r).GetAttributeAtPath(r.AppendPath("Leaves.orientations"))
     value = spec.default
     parent = spec.owner
     parent.RemoveProperty(spec)

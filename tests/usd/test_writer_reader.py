@@ -51,7 +51,13 @@ def test_layout_counts(tmp_path, asset, textures):
 
     out = tmp_path / "p.usda"
     W.write_stage(out, asset, textures, leaves=asset_leaves(asset, separate_sheets=True))
-    stage = Usd.Stage.Open(str(out), Usd.Stage.LoadNone)
+    # the geometry is a payload: a scene opening the plant unloaded sees the interface only
+    lazy = Usd.Stage.Open(str(out), Usd.Stage.LoadNone)
+    assert Usd.ModelAPI(lazy.GetDefaultPrim()).GetKind() == "component"
+    assert Usd.ModelAPI(lazy.GetDefaultPrim()).GetAssetName() == "p"
+    assert lazy.GetDefaultPrim().HasAuthoredPayloads()
+    assert not [p for p in Usd.PrimRange(lazy.GetDefaultPrim()) if p.IsA(UsdGeom.Mesh)]
+    stage = Usd.Stage.Open(str(out))
     root = stage.GetDefaultPrim()
     assert Usd.ModelAPI(root).GetKind() == "component"
     assert UsdGeom.GetStageUpAxis(stage) == "Y"
@@ -137,7 +143,10 @@ def test_png_textures_keep_alpha_and_downsample(tmp_path, asset, textures):
                   leaves=asset_leaves(asset, separate_sheets=True))
     spec = oiio.ImageInput.open(str(tmp_path / "textures" / "p.front.png")).spec()
     assert (spec.width, spec.height, spec.nchannels) == (128, 128, 4)
-    assert "opacity" in (tmp_path / "p.usda").read_text()
+    from pxr import Usd, UsdShade
+    stage = Usd.Stage.Open(str(tmp_path / "p.usda"))
+    surf = UsdShade.Shader(stage.GetPrimAtPath("/p/Looks/LeafFront/PreviewSurface"))
+    assert surf.GetInput("opacity").HasConnectedSource() and surf.GetInput("opacityThreshold").Get() == 0.5
 
 
 def test_png_textures_keep_straight_alpha(tmp_path, asset, textures):
@@ -181,7 +190,7 @@ def test_plain_pxr_reads_every_value_without_the_plugin(tmp_path, asset, texture
 def test_usdz_leaves_baked_payload_out_by_default(tmp_path, asset, textures):
     W.write_stage(tmp_path / "p.usdz", asset, textures, leaves=asset_leaves(asset, separate_sheets=True))
     names = zipfile.ZipFile(tmp_path / "p.usdz").namelist()
-    assert "p.baked.usdc" not in names and len(names) == 3
+    assert "p.baked.usdc" not in names and len(names) == 4 and "p.geom.usdc" in names
     assert "leafRepresentation" not in (tmp_path / "p.usdz").read_bytes().decode("latin-1")
     assert validate_file(tmp_path / "p.usdz").count("error") == 0
 

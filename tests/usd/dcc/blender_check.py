@@ -7,7 +7,8 @@ Run with the bpy venv (``make dcc-check``), NOT under pytest:
 Checks: the PointInstancer arrives as EXPECTED_LEAVES instances of the template leaf; the
 template mesh has two material slots (front, back) whose node trees read an image texture that
 loaded (non-zero size); the stem mesh exists; instance transforms equal the stage's; and, with
-the 'baked' variant selected, one mesh per leaf with both materials and no instances on top.
+the 'baked' variant selected (its payload loaded), one mesh per leaf with both materials, no
+instances on top and, for a tinted plant, the tint as a ``displayColor`` attribute.
 Prints one line per check; exit 1 on failure.
 """
 import sys
@@ -45,9 +46,9 @@ def main(path: str, expected: int, expect_json: str | None = None, baked_path: s
     n_inst = sum(1 for inst in dg.object_instances
                  if inst.is_instance and "TemplateLeaf" in inst.object.name)
     check(n_inst == expected, f"{n_inst} leaf instances, expected {expected}")
-    if expect_json:
-        import json
+    import json
 
+    if expect_json:
         import numpy as np
         data = json.load(open(expect_json))
         want = np.asarray(data["matrices"])
@@ -74,6 +75,10 @@ def main(path: str, expected: int, expect_json: str | None = None, baked_path: s
         dg = bpy.context.evaluated_depsgraph_get()
         n = sum(1 for inst in dg.object_instances if inst.is_instance)
         check(n == 0, f"baked variant: no instanced leaves on top ({n})")
+        if expect_json and json.load(open(expect_json)).get("tinted"):
+            have = [o.name for o in leaves if "displayColor" in o.data.attributes]
+            check(len(have) == len(leaves),
+                  f"baked leaves carry the tint as a displayColor attribute ({len(have)}/{len(leaves)})")
     return 0 if ok else 1
 
 

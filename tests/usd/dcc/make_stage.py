@@ -17,6 +17,8 @@ from leaffit_usd.usd.reader import read_stage  # noqa: E402
 
 
 def main() -> int:
+    import numpy as np
+
     if len(sys.argv) > 1 and sys.argv[1]:
         path = Path(sys.argv[1])
     else:
@@ -28,12 +30,11 @@ def main() -> int:
 
         t = syn.template_mesh(tex=256)
         asset = asset_from_results(t, syn.leaf_fits(t), syn.stem(), syn.frame(), up_axis="Y")
+        asset.tints = np.random.default_rng(0).uniform(0.5, 1.0, (asset.n_leaves, 3)).astype(np.float32)
         path = HERE.parent.parent.parent / "build" / "dcc" / "plant.usda"
         write_stage(path, asset, LeafTextures(t.front_texture, t.back_texture),
                     leaves=asset_leaves(asset, separate_sheets=True))
     import json
-
-    import numpy as np
 
     from leaffit_usd.geometry.quaternion import quat_to_matrix
 
@@ -44,7 +45,7 @@ def main() -> int:
     m[:, 3, 3] = 1
     up = a.metadata.get("up_axis", "Y")
     expect = path.with_suffix(".instances.json")
-    expect.write_text(json.dumps({"up_axis": up, "matrices": m.tolist()}))
+    expect.write_text(json.dumps({"up_axis": up, "matrices": m.tolist(), "tinted": a.tints is not None}))
     # the same stage with leafRepresentation = baked selected (what an artist picks for exact shapes)
     from pxr import Usd
     stage = Usd.Stage.Open(str(path))
