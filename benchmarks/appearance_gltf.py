@@ -70,8 +70,10 @@ def run_plant(name, ply, gt, out_dir: Path, steps: int) -> dict:
     from leaffit_usd.usd.validate import validate_file
 
     z = np.load(gt)
+    from leaffit_usd.fit.params import FitParams
+
     opts = ConvertOptions(labels=str(gt), root=np.asarray(z["root"], np.float64),
-                          up=np.asarray(z["up"], np.float64), fit={"steps": steps, "refine": 2})
+                          up=np.asarray(z["up"], np.float64), fit=FitParams(steps=steps, refine=2))
     stage_path = out_dir / name / f"{name}.usdc"
     t0 = time.perf_counter()
     rep = convert(ply, stage_path, opts)

@@ -17,6 +17,7 @@ LAYERS = [
     {"mesh"},
     {"usd"},
     {"runtime", "edit", "viewer"},
+    {"export"},
     {"pipeline", "api", "batch"},
     {"commands"},
     {"cli", "demo", "__main__"},

@@ -99,13 +99,15 @@ def test_delta_e_drops_with_the_tint(plant):
     cloud_in = GaussianCloud.from_activated(
         np.asarray(cloud_w.means, np.float64) @ W[:3, :3].T + W[:3, 3], np.full((len(cloud_w), 3), 0.004 * s),
         np.tile([1.0, 0, 0, 0], (len(cloud_w), 1)), np.full(len(cloud_w), 0.95), colors=cloud_w.colors)
-    with_tint = leaf_color_errors(a, t.front_texture, cloud_in, labels, tinted=True, res=64)
-    without = leaf_color_errors(a, t.front_texture, cloud_in, labels, tinted=False, res=64)
+    with_tint = leaf_color_errors(a, t.front_texture, cloud_in, labels, tinted=True, res=96)
+    without = leaf_color_errors(a, t.front_texture, cloud_in, labels, tinted=False, res=96)
     assert np.isfinite(with_tint).all() and np.isfinite(without).all()
-    assert np.median(with_tint) < 2.0, with_tint
-    assert without[1] < 2.0                       # leaf 2 has gain 1: no tint needed
+    # the splat and mesh renders differ at the rim and where the two layers mix: ~2-5 ΔE of
+    # rendering noise per leaf; the gains of 0.5-0.8 make 10-30 ΔE without the tint
     off = np.abs(GAINS - 1).max(1) > 0.2
-    assert (without[off] > 5).all() and (without[off] > 3 * with_tint[off]).all(), (with_tint, without)
+    assert np.median(with_tint) < 3.0, (with_tint, without)
+    assert (without[off] > 8).all() and (without[off] > 2 * with_tint[off]).all(), (with_tint, without)
+    assert abs(without[1] - with_tint[1]) < 0.5   # leaf 2 has gain 1: the tint changes nothing
 
 
 def test_lab_reference_values():
