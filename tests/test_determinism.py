@@ -52,7 +52,7 @@ def test_two_conversions_identical_bytes_across_thread_counts(tmp_path):
             assert torch.get_num_threads() == threads      # the caller's setting is restored
     finally:
         torch.set_num_threads(saved)
-    assert set(digests[0]) == {"plant.usda", "plant.baked.usdc", "textures/plant.front.png",
+    assert set(digests[0]) == {"plant.usda", "plant.geom.usdc", "plant.baked.usdc", "textures/plant.front.png",
                                "textures/plant.back.png"}
     assert digests[0] == digests[1]
     assert reports[0]["fit"]["per_leaf"] == reports[1]["fit"]["per_leaf"]
