@@ -554,14 +554,16 @@ def _author_lod_variants(stage, plant, a: PlantAsset, tmpl, root: str, baked: bo
         la = a.at_lod(k)
         vset.SetVariantSelection(names[k])
         with vset.GetVariantEditContext():
-            mesh = UsdGeom.Mesh(stage.OverridePrim(tmpl.GetPath()))
-            _set_template_geometry(mesh, la)
-            sides = _face_sides(la)
-            for side, nm in ((0, "front"), (1, "back")):
-                sub = UsdGeom.Subset(stage.OverridePrim(tmpl.GetPath().AppendChild(nm)))
-                sub.CreateIndicesAttr(Vt.IntArray.FromNumpy(np.flatnonzero(sides == side).astype(np.int32)))
-            if len(a.stem_points) and len(la.stem_points):
-                _set_stem_geometry(UsdGeom.Mesh(stage.OverridePrim(f"{root}/Stem")), la)
+            # LOD0 is the geometry payload itself (payload opinions are weaker than variants')
+            if k > 0:
+                mesh = UsdGeom.Mesh(stage.OverridePrim(tmpl.GetPath()))
+                _set_template_geometry(mesh, la)
+                sides = _face_sides(la)
+                for side, nm in ((0, "front"), (1, "back")):
+                    sub = UsdGeom.Subset(stage.OverridePrim(tmpl.GetPath().AppendChild(nm)))
+                    sub.CreateIndicesAttr(Vt.IntArray.FromNumpy(np.flatnonzero(sides == side).astype(np.int32)))
+                if len(a.stem_points) and len(la.stem_points):
+                    _set_stem_geometry(UsdGeom.Mesh(stage.OverridePrim(f"{root}/Stem")), la)
             if baked and k > 0:
                 rep = plant.GetVariantSets().AddVariantSet("leafRepresentation")
                 rep.AddVariant("baked")
