@@ -31,6 +31,13 @@ def pos_float(text):
     return v
 
 
+def add_input_argument(p) -> None:
+    """The INPUT positional: a 3DGS capture in any format the loader reads."""
+    p.add_argument("input", metavar="INPUT",
+                   help="3DGS capture: INRIA .ply, .compressed.ply, .spz, .sog, .splat or USD "
+                        "ParticleField3DGaussianSplat (see README, input formats)")
+
+
 def add_frame_arguments(p) -> None:
     """--up, --root, --root-index (the input frame's up direction and the root Gaussian)."""
     g = p.add_argument_group("frame")

@@ -25,9 +25,9 @@ ORDER = 10
 
 
 def add_arguments(p) -> None:
-    p.add_argument("input", metavar="INPUT",
-                   help="3DGS capture: INRIA .ply, .compressed.ply, .spz, .sog, .splat or USD "
-                        "ParticleField3DGaussianSplat (see README, input formats)")
+    from leaffit_usd.commands._args import add_input_argument
+
+    add_input_argument(p)
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output stage (.usda, .usdc, .usd or .usdz) or glTF (.glb, .gltf)")
     p.add_argument("--report", metavar="R.json", help="write timings, counts, sizes and fit errors as JSON")
     add_options(p)

@@ -54,9 +54,9 @@ def add_arguments(p) -> None:
     from leaffit_usd.segment.auto import SegmentParams
     from leaffit_usd.segment.edits import add_edits_argument
 
-    p.add_argument("input", metavar="INPUT",
-                   help="3DGS capture: INRIA .ply, .compressed.ply, .spz, .sog, .splat or USD "
-                        "ParticleField3DGaussianSplat (see README, input formats)")
+    from leaffit_usd.commands._args import add_input_argument
+
+    add_input_argument(p)
     p.add_argument("-o", "--output", required=True, metavar="LABELS.npz", help="output labels file (.npz)")
     p.add_argument("--preview", metavar="SEG.png", help="also draw the segmentation (two orthographic views)")
     add_edits_argument(p)
