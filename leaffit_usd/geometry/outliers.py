@@ -1,4 +1,5 @@
-"""Floaters: points far from every other point of a capture (the one isolation test)."""
+"""Floaters: points far from every other point of a capture (``inlier_mask``), and statistical
+outliers (``statistical_inliers``, used by plant isolation)."""
 from __future__ import annotations
 
 import numpy as np
@@ -38,3 +39,31 @@ def inlier_mask(points: np.ndarray, factor: float, k: int = 8) -> np.ndarray:
     if med <= 0:
         return np.ones(n, bool)
     return dk <= factor * med
+
+
+def statistical_inliers(points: np.ndarray, k: int, std_ratio: float,
+                        distances: np.ndarray | None = None) -> np.ndarray:
+    """(N,) bool: False for statistical outliers, whose mean distance to their ``k`` nearest
+    points (itself included, as open3d counts) exceeds the mean of that over all points by
+    ``std_ratio`` standard deviations (sample std). The rule of open3d's
+    ``remove_statistical_outlier`` (tests check the same mask), on scipy's exact kd-tree: no
+    open3d import, the same answer at any thread count.
+
+    points : (N, 3) float, any frame. distances : optional (N, >= k) float, each point's sorted
+    neighbour distances with itself first (from a k-NN query the caller already ran; the
+    neighbours may come from a larger cloud). Everything is an inlier when there are at most
+    ``k`` points.
+    """
+    pts = np.asarray(points, np.float64)
+    n = len(pts)
+    if n <= k:
+        return np.ones(n, bool)
+    if distances is None:
+        from leaffit_usd.geometry import knn
+
+        distances, _ = cKDTree(pts).query(pts, k=k, workers=knn.WORKERS)
+        distances = distances.reshape(n, -1)
+    m = np.asarray(distances, np.float64)[:, :k].sum(1) / k
+    mu = m.sum() / n
+    sd = np.sqrt(((m - mu) ** 2).sum() / max(n - 1, 1))
+    return m <= mu + std_ratio * sd

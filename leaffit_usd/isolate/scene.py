@@ -2,26 +2,27 @@
 floaters in a capture, and keep the plant.
 
 Everything here is in the input frame and free of units: distances are measured against the
-capture's own Gaussian spacing and the plant's height above the ground plane. Steps (on a
-deterministic subsample of at most ``IsolateParams.sample`` Gaussians; every Gaussian then
-follows its nearest sample, or the exact geometric rule where there is one):
+capture's own Gaussian spacing and the plant's height above the ground plane. The scene analysis
+runs on a deterministic random subsample of at most ``IsolateParams.sample`` Gaussians; every
+Gaussian then follows its nearest sample, or the exact geometric rule where there is one.
 
-1. **Planes** -- open3d's RANSAC ``segment_plane`` on a voxel subsample (area-even), up to
-   ``max_planes`` times on what is left. A candidate must be large (its occupied area at least
-   ``min_plane_area`` x the squared height of what stands on it) and one-sided (at most
-   ``max_below`` of the off-plane points behind it): a leaf, however flat, is small next to its
-   plant; a table or floor is not.
-2. **Components** -- the samples off every candidate plane are linked to their 10 nearest
-   neighbours closer than ``link`` x the median 4-NN spacing (scipy ``connected_components``).
-   The largest component is the plant (with its pot and soil); components within ``near_gap``
-   of it stay with it; the others are background objects (``min_background`` samples or more)
-   or floaters.
-3. **Ground** -- the candidate plane the plant's component rests on (its lowest points within a
-   few thresholds of the plane): its inliers are GROUND, everything behind it BACKGROUND, and
-   its normal (on the plant's side) is the scene's up. Other candidate planes (walls) are
-   BACKGROUND.
-4. **Outliers** -- open3d's ``remove_statistical_outlier`` on the plant component's samples
-   (``outlier_neighbors``, ``outlier_std``): FLOATER.
+1. **Planes** -- RANSAC plane hypotheses on a voxel subsample (area-even), up to ``max_planes``
+   times on what is left, each refined to a least-squares fixed point.
+2. **Ground** -- a candidate is the ground (table, floor) only when it looks like one from the
+   plant's side, not like a big leaf or a flat group of leaves: the largest connected patch of its
+   inliers (a leaf's plane also cuts the rest of the plant at scattered points; those are not a
+   patch) is large next to the height of what stands on it (``min_plane_area``) and wider than
+   that object's footprint (``min_plane_span``); the object touches it and rises from it; and over
+   the patch almost nothing lies behind the plane (``max_below``; a leaf has the rest of its plant
+   on both sides). Among those passing, the one with most inliers. Its inliers are GROUND,
+   everything behind it BACKGROUND, and its normal (on the plant's side) is the scene's up.
+3. **Components** -- the samples above the ground (all, without one) are linked to their 10
+   nearest neighbours closer than ``link`` x the median 4-NN spacing (scipy
+   ``connected_components``). The largest component is the plant (with its pot and soil);
+   components within ``near_gap`` of it stay with it; the others are background objects
+   (``min_background`` samples or more) or floaters.
+4. **Outliers** -- statistical outliers of the plant's samples (``outlier_neighbors``,
+   ``outlier_std``; :func:`leaffit_usd.geometry.outliers.statistical_inliers`): FLOATER.
 5. **Pot and soil** (when the up direction is known) -- a circle fitted to the lowest slab of the
    plant's component (Kasa least squares, trimmed) that is wide (>= ``min_pot_radius`` x the
    plant height), round (coverage of the angles) and thin (small residual) is the pot's foot;
@@ -31,7 +32,16 @@ follows its nearest sample, or the exact geometric rule where there is one):
    below it is soil too. The stem base (``root``) is the middle of the lowest plant Gaussians
    above the soil inside the rim.
 
-A trimmed plant (no plane large enough, no pot) loses only what lies far from it.
+A trimmed plant (no plane passes, no pot) loses only what lies far from it.
+
+RANSAC: numpy, not open3d's ``segment_plane``. open3d 0.20's parallel RANSAC gave different
+planes at 1 and 2 threads here even with ``o3d.utility.random.seed`` set (so the output was not
+the same bytes across machines), and ``import open3d`` alone costs ~1.3 s (it pulls in its
+plotly/dash visualisation), twice this whole stage's budget on 100k Gaussians.
+scikit-learn's ``RANSACRegressor`` fits a function y = f(x), not a plane in 3-D with orthogonal
+residuals, and pyransac3d draws from Python's global ``random`` state. The hypotheses here are
+drawn from one seeded ``numpy.random.Generator`` and scored with element-wise numpy (no BLAS
+reductions), so the result is the same bytes at any thread count.
 """
 from __future__ import annotations
 
@@ -42,6 +52,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from leaffit_usd.errors import ParameterError
+from leaffit_usd.geometry import knn as _knn
 from leaffit_usd.isolate.result import (BACKGROUND, FLOATER, GROUND, PLANT, POT, SOIL,
                                         Isolation)
 
@@ -53,27 +64,31 @@ class IsolateParams:
     """Parameters of :func:`isolate_plant` (relative: no input units anywhere).
 
     sample : Gaussians the scene analysis runs on (deterministic random subsample; all when fewer)
-    plane_voxels : about this many voxels in the area-even sample given to RANSAC
+    plane_voxels : at most this many voxels in the area-even sample given to RANSAC
     plane_threshold : RANSAC inlier distance, x the voxel size
-    plane_iterations : RANSAC iterations per plane; max_planes : candidate planes tried
-    min_plane_area : a plane's occupied area / (height of what stands on it)^2, at least
-    max_below : largest fraction of off-plane points behind a ground plane
+    plane_iterations : RANSAC hypotheses per plane; max_planes : candidate planes tried
+    min_plane_area : the area of a ground plane's largest inlier patch / (height of what stands on
+        it)^2, at least
+    min_plane_span : the patch's width / the width of what stands on it, at least
+    max_below : largest fraction of the off-plane samples over the patch that lie behind a ground
+        plane
     link : component linking radius, x the median distance to the 4th nearest sample
     near_gap : components closer than this x the plant's size to the plant are part of it
     min_background : far components with at least this many samples are background objects
-    outlier_neighbors, outlier_std : open3d statistical outlier removal on the plant's samples
+    outlier_neighbors, outlier_std : statistical outlier removal on the plant's samples
         (0 neighbours = off)
     pot : look for a pot and soil; min_pot_radius : smallest pot radius, x plant height
     seed : RANSAC and subsample seed
     """
 
-    sample: int = 200_000
+    sample: int = 20_000
     plane_voxels: int = 20_000
     plane_threshold: float = 1.0
     plane_iterations: int = 1000
     max_planes: int = 4
     min_plane_area: float = 0.15
-    max_below: float = 0.2
+    min_plane_span: float = 1.2
+    max_below: float = 0.05
     link: float = 4.0
     near_gap: float = 0.04
     min_background: int = 30
@@ -88,8 +103,8 @@ class IsolateParams:
                             ("max_planes", 0), ("min_background", 1), ("outlier_neighbors", 0)):
             if int(getattr(self, name)) < least:
                 raise ParameterError(name, f"an integer >= {least}", getattr(self, name))
-        for name in ("plane_threshold", "min_plane_area", "link", "near_gap", "outlier_std",
-                     "min_pot_radius"):
+        for name in ("plane_threshold", "min_plane_area", "min_plane_span", "link", "near_gap",
+                     "outlier_std", "min_pot_radius"):
             v = float(getattr(self, name))
             if not np.isfinite(v) or v <= 0:
                 raise ParameterError(name, "a positive number", v)
@@ -141,6 +156,8 @@ class Crop:
         return f"{self.kind}:" + ",".join(f"{v:g}" for v in self.values)
 
 
+
+
 # ---- helpers ----------------------------------------------------------------------------------
 def _plane_basis(u: np.ndarray) -> np.ndarray:
     """(3, 2) orthonormal basis of the plane perpendicular to unit ``u``."""
@@ -150,38 +167,146 @@ def _plane_basis(u: np.ndarray) -> np.ndarray:
     return np.stack([e1, np.cross(u, e1)], axis=1)
 
 
+def _heights(p: np.ndarray, n: np.ndarray, d: float) -> np.ndarray:
+    """(M,) signed distances ``p . n + d`` of (M, 3) points, element-wise (no BLAS: the same
+    bits at any thread count)."""
+    return p[:, 0] * n[0] + p[:, 1] * n[1] + p[:, 2] * n[2] + d
+
+
 def _fit_plane(p: np.ndarray) -> tuple[np.ndarray, float]:
-    """Least-squares plane through (M, 3) points -> (unit normal (3,), d) with n.x + d = 0."""
-    c = p.mean(0)
-    _, _, vt = np.linalg.svd(p - c, full_matrices=False)
-    n = vt[-1] / np.linalg.norm(vt[-1])
+    """Least-squares plane through (M, 3) points -> (unit normal (3,), d) with n.x + d = 0, the
+    normal's largest component positive. Element-wise sums and a 3x3 eigen-solve (no threaded
+    BLAS reduction over M)."""
+    c = p.sum(0) / len(p)
+    q = p - c
+    cov = np.array([[(q[:, i] * q[:, j]).sum() for j in range(3)] for i in range(3)])
+    n = np.linalg.eigh(cov)[1][:, 0]
+    n = n / np.linalg.norm(n)
+    if n[int(np.argmax(np.abs(n)))] < 0:
+        n = -n
     return n, -float(n @ c)
 
 
-def _components(s: np.ndarray, link: float) -> tuple[np.ndarray, float]:
-    """Connected components of samples (M, 3): 10-NN graph with edges shorter than
-    ``link`` x median 4-NN distance. Returns (labels (M,) int64 sorted by size: 0 = largest,
-    the linking radius)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
+def _voxel_down(p: np.ndarray, target: int) -> tuple[np.ndarray, float]:
+    """Area-even subsample of (M, 3) points: the centroid of each occupied voxel, about
+    ``target`` of them (surfaces: voxel count ~ 1 / size^2, adapted in a few steps).
+    Returns ((V, 3) centroids in voxel-key order, the voxel size)."""
+    lo, hi = np.quantile(p, [0.005, 0.995], axis=0)
+    size = (float(np.linalg.norm(hi - lo)) or 1.0) / 100.0
+    base = p.min(0)
+    for _ in range(8):
+        keys = np.floor((p - base) / size).astype(np.int64)
+        dims = keys.max(0) + 1
+        _, inv, cnt = np.unique((keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2],
+                                return_inverse=True, return_counts=True)
+        ratio = len(cnt) / target
+        if 0.7 <= ratio <= 1.4:
+            break
+        size *= np.sqrt(ratio)
+    cen = np.stack([np.bincount(inv, p[:, i], len(cnt)) for i in range(3)], axis=1) / cnt[:, None]
+    return cen, float(size)
 
+
+def _ransac_plane(v: np.ndarray, thr: float, iterations: int, rng: np.random.Generator,
+                  score_size: int = 1500) -> tuple[np.ndarray, float]:
+    """The plane (unit normal (3,), d) with most of (V, 3) points within ``thr``, among
+    ``iterations`` planes through 3 random points, each scored on the same ``score_size`` random
+    points (a large plane's share is estimated to a few percent: enough to rank hypotheses; the
+    winner is refined on all points by the caller)."""
+    m = len(v)
+    score = v if m <= score_size else v[np.sort(rng.choice(m, score_size, replace=False))]
+    tri = rng.integers(0, m, size=(int(iterations), 3))
+    a = v[tri[:, 0]]
+    nrm = np.cross(v[tri[:, 1]] - a, v[tri[:, 2]] - a)
+    ln = np.sqrt((nrm ** 2).sum(1))
+    ok = ln > 0
+    nrm, a = nrm[ok] / ln[ok, None], a[ok]
+    d = -(nrm * a).sum(1)
+    counts = np.zeros(len(nrm), np.int64)
+    for j in range(0, len(nrm), 256):
+        sl = slice(j, j + 256)
+        h = (score[:, 0:1] * nrm[None, sl, 0] + score[:, 1:2] * nrm[None, sl, 1]
+             + score[:, 2:3] * nrm[None, sl, 2] + d[None, sl])
+        counts[sl] = (np.abs(h) <= thr).sum(0)
+    if not len(counts):
+        return np.array([0.0, 0.0, 1.0]), 0.0
+    best = int(np.argmax(counts))  # the first of equals: deterministic
+    return nrm[best], float(d[best])
+
+
+def _knn_graph(s: np.ndarray, link: float, k_more: int = 0) -> tuple:
+    """The samples' (M, 3) 10-NN graph with edges shorter than ``link`` x the median 4-NN
+    distance: (rows (E,) int64, cols (E,) int64, that radius, the sorted distances (M, k) to the
+    max(11, ``k_more``) nearest samples, itself first)."""
     from leaffit_usd.geometry.knn import knn
 
     m = len(s)
     if m < 2:
-        return np.zeros(m, np.int64), 0.0
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), 0.0, np.zeros((m, 1))
     k = min(11, m)
-    d, nb = knn(s, k)
+    d, nb = knn(s, min(max(k, k_more), m))
     radius = link * float(np.median(d[:, min(4, k - 1)]))
-    ok = (d[:, 1:] <= radius)
-    rows = np.repeat(np.arange(m), k - 1)[ok.ravel()]
-    g = coo_matrix((np.ones(len(rows), np.int8), (rows, nb[:, 1:].ravel()[ok.ravel()])), shape=(m, m))
+    ok = d[:, 1:k] <= radius
+    return np.repeat(np.arange(m), k - 1)[ok.ravel()], nb[:, 1:k][ok], radius, d
+
+
+def _components(edges: tuple, mask: np.ndarray) -> np.ndarray:
+    """Connected components of the samples in ``mask`` (M,) bool, over the graph ``edges``
+    (rows, cols) restricted to them -> (K,) int64 labels of ``np.flatnonzero(mask)``, ranked by
+    size (0 = largest; ties by first sample)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    idx = np.flatnonzero(mask)
+    if not len(idx):
+        return np.zeros(0, np.int64)
+    rows, cols = edges[0], edges[1]
+    keep = mask[rows] & mask[cols]
+    pos = np.cumsum(mask) - 1  # sample -> index among the masked ones
+    g = coo_matrix((np.ones(int(keep.sum()), np.int8), (pos[rows[keep]], pos[cols[keep]])),
+                   shape=(len(idx), len(idx)))
     _, lab = connected_components(g, directed=False)
-    sizes = np.bincount(lab)
-    order = np.argsort(-sizes, kind="stable")
+    order = np.argsort(-np.bincount(lab), kind="stable")
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
-    return rank[lab].astype(np.int64), radius
+    return rank[lab].astype(np.int64)
+
+
+def _largest_patch(xy: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """The largest 8-connected patch of occupied ``cell``-sized squares of (M, 2) in-plane points:
+    (its points (M,) bool, the dilated patch as a grid (X, Y) bool, (grid origin, cell))."""
+    from scipy import ndimage
+
+    lo = xy.min(0) - cell
+    ij = np.floor((xy - lo) / cell).astype(np.int64)
+    shape = tuple(ij.max(0) + 2)
+    if shape[0] * shape[1] > 16_000_000:  # a few far-off inliers: coarser cells
+        return _largest_patch(xy, cell * 2)
+    occ = np.zeros(shape, bool)
+    occ[ij[:, 0], ij[:, 1]] = True
+    lab, nlab = ndimage.label(occ, structure=np.ones((3, 3), bool))
+    if nlab == 0:
+        return np.zeros(len(xy), bool), occ, (lo, cell)
+    big = int(np.argmax(np.bincount(lab.ravel())[1:])) + 1
+    patch = lab == big
+    return patch[ij[:, 0], ij[:, 1]], ndimage.binary_dilation(patch, np.ones((3, 3), bool)), (lo, cell)
+
+
+def _in_grid(xy: np.ndarray, grid: np.ndarray, frame: tuple) -> np.ndarray:
+    """(M,) bool: which (M, 2) in-plane points fall in a True cell of ``grid``."""
+    lo, cell = frame
+    ij = np.floor((xy - lo) / cell).astype(np.int64)
+    ok = (ij >= 0).all(1) & (ij[:, 0] < grid.shape[0]) & (ij[:, 1] < grid.shape[1])
+    out = np.zeros(len(xy), bool)
+    out[ok] = grid[ij[ok, 0], ij[ok, 1]]
+    return out
+
+
+def _span(xy: np.ndarray) -> float:
+    """Width of (M, 2) in-plane points: the larger 5-95 % quantile range of the two axes."""
+    if len(xy) < 2:
+        return 0.0
+    return float(np.max(np.subtract(*np.quantile(xy, [0.95, 0.05], axis=0))))
 
 
 def _circle_fit(xy: np.ndarray, iters: int = 4) -> tuple[np.ndarray, float, np.ndarray]:
@@ -212,6 +337,8 @@ def _coverage(xy: np.ndarray, c: np.ndarray, bins: int = 24) -> float:
     return len(np.unique(k)) / bins
 
 
+
+
 def _sample_index(n: int, k: int, seed: int) -> np.ndarray:
     if n <= k:
         return np.arange(n)
@@ -227,14 +354,14 @@ def isolate_plant(cloud, params: IsolateParams | None = None, up: np.ndarray | N
     up : optional (3,) unit vector, input frame (the user's ``--up``): the ground plane must
         face it, and the pot is looked for along it even without a plane.
     crop : optional region to keep; Gaussians outside are BACKGROUND.
-    Returns an :class:`Isolation` (classes in cloud order). Deterministic for a given seed.
+    Returns an :class:`Isolation` (classes in cloud order). Deterministic for a given seed, the
+    same at any thread count.
     """
     p_ = (params or IsolateParams()).validate()
     t_all = time.perf_counter()
     timings = {}
     pts = np.asarray(cloud.means, np.float64)
-    n = len(pts)
-    classes = np.zeros(n, np.uint8)
+    classes = np.zeros(len(pts), np.uint8)
     if crop is not None:
         classes[~crop.contains(pts)] = BACKGROUND
     if up is not None:
@@ -243,68 +370,17 @@ def isolate_plant(cloud, params: IsolateParams | None = None, up: np.ndarray | N
     if len(cand_idx) < 50:
         return Isolation(classes, params=p_.to_dict(), timings={"total": time.perf_counter() - t_all})
 
-    # 1. candidate planes ------------------------------------------------------------------
-    t0 = time.perf_counter()
+    # 1-4 on the samples -----------------------------------------------------------------------
     sidx = cand_idx[_sample_index(len(cand_idx), p_.sample, p_.seed)]
-    s = pts[sidx]
-    planes, voxel = _candidate_planes(s, p_, up)
-    timings["planes"] = time.perf_counter() - t0
+    scls, ground, thr, radius = _analyse_samples(pts[sidx], p_, up, timings)
 
-    # 2. components off the planes, 3. the ground plane ---------------------------------------
-    t0 = time.perf_counter()
-    thr = p_.plane_threshold * voxel
-    scls = np.full(len(s), PLANT, np.uint8)
-    ground = None
-    if planes:
-        # first pass: off every candidate, to find the plane the plant's group stands on
-        off = np.ones(len(s), bool)
-        for n_, d_, _ in planes:
-            off &= np.abs(s @ n_ + d_) > thr
-        g1 = _group(s, off, p_)
-        ground = _choose_ground(s, g1["group"], planes, thr, up)
-        if ground is not None:  # the ground's own noise: the tolerance from here on
-            hg = s @ ground[0] + ground[1]
-            hg = hg[np.abs(hg) <= thr]
-            if len(hg) >= 10:
-                thr = float(np.clip(4 * 1.4826 * np.median(np.abs(hg - np.median(hg))), 0.2 * thr, thr))
-        # second pass: off the ground only (other candidates may be flat leaves; walls and
-        # shelves fall apart into background components anyway)
-        off = np.ones(len(s), bool) if ground is None else (s @ ground[0] + ground[1]) > thr
-        prefer = g1["group"] if ground is not None else None
-        grp = _group(s, off, p_, prefer)
-    else:
-        grp = _group(s, np.ones(len(s), bool), p_)
-    radius = grp["radius"]
-    if grp["far_members"] is not None:
-        scls[grp["far_members"]] = grp["far_cls"]
-    if ground is not None:
-        hs = s @ ground[0] + ground[1]
-        scls[np.abs(hs) <= thr] = GROUND
-        scls[hs < -thr] = BACKGROUND
-    timings["components"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    # 4. statistical outliers of the plant's samples ----------------------------------------------
-    if p_.outlier_neighbors > 0:
-        keep = np.flatnonzero(scls == PLANT)
-        if len(keep) > 4 * p_.outlier_neighbors:
-            import open3d as o3d
-
-            pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(s[keep]))
-            _, inl = pc.remove_statistical_outlier(int(p_.outlier_neighbors), float(p_.outlier_std))
-            bad = np.ones(len(keep), bool)
-            bad[np.asarray(inl, np.int64)] = False
-            scls[keep[bad]] = FLOATER
-    timings["outliers"] = time.perf_counter() - t0
-
-    # every Gaussian: its sample's class, the planes' exact rule --------------------------------------
+    # every Gaussian: its sample's class, the ground plane's exact rule --------------------------
     t0 = time.perf_counter()
     full = _spread(pts, cand_idx, sidx, scls, radius)
     if ground is not None:
-        hf = pts[cand_idx] @ ground[0] + ground[1]
-        sub = full.copy()
-        sub[(np.abs(hf) <= thr) & (sub != BACKGROUND)] = GROUND
-        sub[hf < -thr] = BACKGROUND
-        full = sub
+        hf = _heights(pts[cand_idx], *ground)
+        full[(np.abs(hf) <= thr) & (full != BACKGROUND)] = GROUND
+        full[hf < -thr] = BACKGROUND
     classes[cand_idx] = full
     timings["spread"] = time.perf_counter() - t0
 
@@ -319,140 +395,206 @@ def isolate_plant(cloud, params: IsolateParams | None = None, up: np.ndarray | N
             root = pts[root_index].copy()
     timings["pot"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_all
-    plane = None if ground is None else np.r_[ground[0], ground[1]]
-    up_source = "table" if ground is not None else None
-    iso = Isolation(classes, up=None if ground is None else ground[0].copy(), up_source=up_source,
-                    root=root, root_index=root_index, plane=plane, pot=pot,
-                    params={**p_.to_dict(), "crop": None if crop is None else str(crop)},
-                    timings=timings)
-    return iso
+    return Isolation(classes, up=None if ground is None else ground[0].copy(),
+                     up_source=None if ground is None else "table", root=root,
+                     root_index=root_index, plane=None if ground is None else np.r_[ground[0], ground[1]],
+                     pot=pot, params={**p_.to_dict(), "crop": None if crop is None else str(crop)},
+                     timings=timings)
 
 
-def _group(s: np.ndarray, off: np.ndarray, p_: IsolateParams, prefer: np.ndarray | None = None) -> dict:
-    """Components of the samples ``s[off]``: the plant's (the largest, or the one holding most
-    of the samples ``prefer``) with the components near it ("group"), and the far ones
-    ("far_members", their class "far_cls": background when large, floater when small)."""
-    from scipy.spatial import cKDTree
-
-    off_idx = np.flatnonzero(off)
-    comp, radius = _components(s[off_idx], p_.link)
-    out = {"radius": radius, "group": off_idx, "main": off_idx, "far_members": None, "far_cls": None}
-    if not len(comp):
-        return out
-    main_id = 0
-    if prefer is not None and len(prefer):
-        pos = np.searchsorted(off_idx, prefer)
-        ok = (pos < len(off_idx)) & (off_idx[np.minimum(pos, len(off_idx) - 1)] == prefer)
-        if ok.any():
-            main_id = int(np.bincount(comp[pos[ok]]).argmax())
-    main = off_idx[comp == main_id]
-    out["main"] = out["group"] = main
-    log.debug("components: %d samples, %d components, plant's %d, link radius %.3g",
-              len(off_idx), int(comp.max()) + 1, len(main), radius)
-    other = comp != main_id
-    if not other.any():
-        return out
-    size = float(np.linalg.norm(np.ptp(s[main], axis=0)))
-    members, mcomp = off_idx[other], comp[other]
-    gap = p_.near_gap * size  # bounded queries: far points return inf at once
-    d, _ = cKDTree(s[main]).query(s[members], k=1, distance_upper_bound=gap * 1.0001, workers=-1)
-    dmin = np.full(int(comp.max()) + 1, np.inf)
-    np.minimum.at(dmin, mcomp, d)  # each component's gap to the plant
-    counts = np.bincount(comp)
-    far = dmin[mcomp] > gap
-    out["far_members"] = members[far]
-    out["far_cls"] = np.where(counts[mcomp[far]] >= p_.min_background, BACKGROUND, FLOATER).astype(np.uint8)
-    out["group"] = np.sort(np.concatenate([main, members[~far]]))
-    return out
-
-
-def _choose_ground(s, group, planes, thr, up):
-    """The candidate plane the plant's group stands on -> (unit normal towards it, d) or None.
-    Among several (a flat leaf under the pot's rim can pass too), the one with most samples."""
-    best = None
-    for k, (n_, d_, span) in enumerate(planes):
-        support = int((np.abs(s @ n_ + d_) <= thr).sum())
-        if not len(group):
-            break
-        h = s[group] @ n_ + d_
-        if np.median(h) < 0:
-            n_, d_, h = -n_, -d_, -h
-        if up is not None and n_ @ up < np.cos(np.radians(45)):
-            continue
-        lo, hi = np.quantile(h, [0.001, 0.99])
-        xy = s[group] @ _plane_basis(n_)
-        foot = float(np.max(np.subtract(*np.quantile(xy, [0.95, 0.05], axis=0))))
-        behind = float((h < -thr).mean())
-        log.debug("ground test plane %d: lo %.3g hi %.3g thr %.3g behind %.4f span %.3g foot %.3g",
-                  k, lo, hi, thr, behind, span, foot)
-        # the plant stands on it: touches it, rises well above it, nothing of it behind, and the
-        # plane reaches wider than the plant's footprint (a leaf, even a big flat one, does not)
-        if lo <= 6 * thr and hi > 10 * thr and behind < 0.01 and span >= 1.2 * foot:
-            if best is None or support > best[2]:
-                best = (n_, d_, support)
-    return None if best is None else (best[0], best[1])
-
-
-def _candidate_planes(s: np.ndarray, p_: IsolateParams, up) -> tuple[list, float]:
-    """Large one-sided planes of the samples (M, 3): list of (unit normal, d, in-plane span of
-    the inliers), and the voxel size."""
-    import open3d as o3d
-
-    lo, hi = np.quantile(s, [0.005, 0.995], axis=0)
-    ext = float(np.linalg.norm(hi - lo)) or 1.0
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(s))
-    voxel = ext / 100.0
-    v = pc.voxel_down_sample(voxel)
-    target = min(p_.plane_voxels, len(s) / 4)  # a voxel holds a few samples
-    for _ in range(6):  # surfaces: voxel count ~ 1 / size^2
-        ratio = len(v.points) / target
-        if 0.7 <= ratio <= 1.4:
-            break
-        voxel *= np.sqrt(ratio)
-        v = pc.voxel_down_sample(voxel)
-    vp = np.asarray(v.points)
+def _analyse_samples(s: np.ndarray, p_: IsolateParams, up, timings: dict):
+    """Steps 1-4 on the samples (M, 3): (classes (M,) uint8, ground (unit normal, d) or None,
+    the ground's inlier distance, the components' linking radius)."""
+    t0 = time.perf_counter()
+    vp, voxel = _voxel_down(s, int(min(p_.plane_voxels, len(s) / 4)))  # a voxel holds a few samples
     thr = p_.plane_threshold * voxel
-    o3d.utility.random.seed(int(p_.seed))
+    planes = _candidate_planes(vp, thr, p_)
+    timings["planes"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    edges = _knn_graph(s, p_.link, int(p_.outlier_neighbors))
+    ground = _choose_ground(s, planes, thr, voxel, edges, p_, up)
+    scls = np.full(len(s), PLANT, np.uint8)
+    off = np.ones(len(s), bool)
+    if ground is not None:
+        hs = _heights(s, *ground)
+        hg = hs[np.abs(hs) <= thr]
+        if len(hg) >= 10:  # the ground's own noise: the tolerance from here on
+            thr = float(np.clip(4 * 1.4826 * np.median(np.abs(hg - np.median(hg))), 0.2 * thr, thr))
+        scls[np.abs(hs) <= thr] = GROUND
+        scls[hs < -thr] = BACKGROUND
+        off = hs > thr
+    timings["ground"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    grp = _group(s, off, _components(edges, off), p_)
+    if grp["far_members"] is not None:
+        scls[grp["far_members"]] = grp["far_cls"]
+    timings["components"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    if p_.outlier_neighbors > 0:
+        from leaffit_usd.geometry.outliers import statistical_inliers
+
+        keep = np.flatnonzero(scls == PLANT)
+        if len(keep) > 4 * p_.outlier_neighbors:
+            ok = statistical_inliers(s[keep], int(p_.outlier_neighbors), float(p_.outlier_std),
+                                     distances=edges[3][keep])  # neighbours among all samples
+            scls[keep[~ok]] = FLOATER
+    timings["outliers"] = time.perf_counter() - t0
+    return scls, ground, thr, edges[2]
+
+
+def _candidate_planes(vp: np.ndarray, thr: float, p_: IsolateParams) -> list:
+    """Up to ``max_planes`` planes of the voxel centroids (V, 3), each RANSAC'd on what the
+    previous ones left: list of (unit normal (3,), d)."""
+    rng = np.random.default_rng(p_.seed)
     planes = []
     rest = np.arange(len(vp))
     for _ in range(int(p_.max_planes)):
         if len(rest) < 100:
             break
-        sub = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(vp[rest]))
-        model, inl = sub.segment_plane(distance_threshold=thr, ransac_n=3,
-                                       num_iterations=int(p_.plane_iterations))
-        inl = rest[np.asarray(inl, np.int64)]
+        n_, d_ = _ransac_plane(vp[rest], thr, p_.plane_iterations, rng)
+        inl = rest[np.abs(_heights(vp[rest], n_, d_)) <= thr]
         if len(inl) < 50:
             break
-        # refine to a fixed point of (inliers -> least-squares plane): open3d's parallel RANSAC
-        # may return slightly different models run to run; the fixed point does not
-        for _ in range(10):
+        for _ in range(10):  # refine to a fixed point of (inliers -> least-squares plane)
             n_, d_ = _fit_plane(vp[inl])
-            if n_[int(np.argmax(np.abs(n_)))] < 0:
-                n_, d_ = -n_, -d_
-            dist = vp @ n_ + d_
-            new = np.flatnonzero(np.abs(dist) <= thr)
-            if np.array_equal(new, inl):
+            new = np.flatnonzero(np.abs(_heights(vp, n_, d_)) <= thr)
+            if np.array_equal(new, inl) or len(new) < 3:
                 break
             inl = new
         rest = np.setdiff1d(rest, inl)
-        offp = dist[np.abs(dist) > 2 * thr]
-        if len(offp) < 10:
-            continue
-        if (offp > 0).mean() < 0.5:
-            n_, d_, dist, offp = -n_, -d_, -dist, -offp
-        below = (offp < 0).mean()
-        height = float(np.quantile(offp[offp > 0], 0.9)) if (offp > 0).any() else 0.0
-        xy = vp[inl] @ _plane_basis(n_)
-        cells = np.unique(np.floor(xy / (2 * voxel)).astype(np.int64), axis=0)
-        area = len(cells) * (2 * voxel) ** 2
-        span = float(np.max(np.subtract(*np.quantile(xy, [0.95, 0.05], axis=0))))
-        ok = below <= p_.max_below and height > 0 and area >= p_.min_plane_area * height ** 2
-        log.debug("plane candidate n=(%.2f %.2f %.2f): %d inliers, area/h^2 %.3f, below %.2f -> %s",
-                  *n_, len(inl), area / max(height ** 2, 1e-30), below, ok)
-        if ok:
-            planes.append((n_, d_, span))
-    return planes, voxel
+        planes.append((n_, d_))
+        log.debug("plane candidate n=(%.2f %.2f %.2f): %d of %d voxels", *n_, len(inl), len(vp))
+    return planes
+
+
+def _choose_ground(s, planes, thr, voxel, edges, p_: IsolateParams, up):
+    """The candidate plane that is the ground (see the module docstring, step 2) -> (unit normal
+    towards the plant, d) or None.
+
+    Each candidate is tested on its own first. When several pass (a back wall also has the whole
+    scene in front of it, a table included), each is tested again with the other passing planes'
+    inliers taken out: the plant still stands on the table, but nothing then stands on the wall.
+    Among those passing both, the one with most inlier samples."""
+    cands = []
+    for n_, d_ in planes:
+        h = _heights(s, n_, d_)
+        off = np.abs(h) > thr
+        if up is not None:
+            flip = n_ @ up < 0
+        else:  # the side most off-plane samples are on
+            flip = (h[off] > 0).mean() < 0.5 if off.any() else False
+        if flip:
+            n_, d_, h = -n_, -d_, -h
+        if up is None or n_ @ up >= np.cos(np.radians(45)):
+            cands.append((n_, d_, h))
+    passing = []
+    for k, (n_, d_, h) in enumerate(cands):
+        res = _ground_test(s, h, n_, thr, voxel, edges, p_, None)
+        log.debug("ground test %d n=(%.2f %.2f %.2f): %s", k, *n_, _fmt(res))
+        if res["ok"]:
+            passing.append(k)
+    best = None
+    for k in passing:
+        n_, d_, h = cands[k]
+        others = np.zeros(len(s), bool)
+        for j in passing:
+            if j != k:
+                others |= np.abs(cands[j][2]) <= thr
+        if len(passing) > 1:
+            res = _ground_test(s, h, n_, thr, voxel, edges, p_, others)
+            log.debug("ground test %d again without the other passing planes: %s", k, _fmt(res))
+            if not res["ok"]:
+                continue
+        support = int((np.abs(h) <= thr).sum())
+        if best is None or support > best[2]:
+            best = (n_, d_, support)
+    return None if best is None else (best[0], best[1])
+
+
+def _fmt(res: dict) -> str:
+    return ", ".join(f"{a} {b:.3g}" for a, b in res.items())
+
+
+def _ground_test(s, h, n_, thr, voxel, edges, p_: IsolateParams, exclude) -> dict:
+    """Measures of one oriented candidate plane (heights ``h`` (M,) of the samples; ``exclude``
+    (M,) bool or None: samples left out of what stands on it) and whether it passes as the
+    ground: nothing much lies behind it over its largest inlier patch; what stands on it (the
+    largest component above it, with the components near it: a pot that a thin stem joins only
+    loosely) touches it and rises from it; and the patch is large and wider than that object."""
+    out = {"ok": False}
+    on = np.flatnonzero(np.abs(h) <= thr)
+    if len(on) < 50:
+        return out
+    # the patch and what lies behind it first (cheap; most leaves and walls fail here)
+    basis = _plane_basis(n_)
+    xy_on = s[on] @ basis
+    in_patch, grid, frame = _largest_patch(xy_on, 2 * voxel)
+    offp = np.flatnonzero(np.abs(h) > thr)
+    over = offp[_in_grid(s[offp] @ basis, grid, frame)]
+    out["below"] = below = float((h[over] < 0).mean()) if len(over) else 0.0
+    if below > p_.max_below:
+        return out
+    above = h > thr
+    if exclude is not None:
+        above &= ~exclude
+    main = _group(s, above, _components(edges, above), p_)["group"]  # with what is near it
+    if len(main) < 50:
+        return out
+    lo, hi = np.quantile(h[main], [0.001, 0.99])
+    cells = np.unique(np.floor((xy_on[in_patch] - frame[0]) / frame[1]).astype(np.int64), axis=0)
+    area = len(cells) * frame[1] ** 2
+    span, foot = _span(xy_on[in_patch]), _span(s[main] @ basis)
+    out.update(touch=lo / thr, rise=hi / thr, area=area / hi ** 2 if hi > 0 else 0.0,
+               span=span / foot if foot > 0 else 0.0)
+    out["ok"] = bool(lo <= 6 * thr and hi > 10 * thr and out["area"] >= p_.min_plane_area
+                     and out["span"] >= p_.min_plane_span)
+    return out
+
+
+def _group(s: np.ndarray, off: np.ndarray, comp: np.ndarray, p_: IsolateParams) -> dict:
+    """The plant's group among the samples ``s[off]`` (component labels ``comp``, 0 = largest):
+    the largest component with the components near it, transitively (a pot and soil, and a
+    plant that the 10-NN graph splits into two where a thin stem meets the soil) ("group"), and
+    the far ones ("far_members", their class "far_cls": background when large, floater when
+    small). Near: within ``near_gap`` x the largest component's size."""
+    from scipy.spatial import cKDTree
+
+    off_idx = np.flatnonzero(off)
+    out = {"group": off_idx, "far_members": None, "far_cls": None}
+    if not len(comp):
+        return out
+    main = off_idx[comp == 0]
+    out["group"] = main
+    log.debug("components: %d samples, %d components, the largest %d",
+              len(off_idx), int(comp.max()) + 1, len(main))
+    if not (comp != 0).any():
+        return out
+    gap = p_.near_gap * float(np.linalg.norm(np.ptp(s[main], axis=0)))
+    joined = np.zeros(int(comp.max()) + 1, bool)
+    joined[0] = True
+    new = joined.copy()
+    for _ in range(16):  # grow by the components near what joined last
+        rest = ~joined[comp]
+        if not rest.any():
+            break
+        # bounded queries: far points return inf at once
+        d, _ = cKDTree(s[off_idx[new[comp]]]).query(s[off_idx[rest]], k=1,
+                                                    distance_upper_bound=gap * 1.0001, workers=_knn.WORKERS)
+        dmin = np.full(len(joined), np.inf)
+        np.minimum.at(dmin, comp[rest], d)
+        new = dmin <= gap
+        if not new.any():
+            break
+        joined |= new
+    far = ~joined[comp]
+    out["far_members"] = off_idx[far]
+    out["far_cls"] = np.where(np.bincount(comp)[comp[far]] >= p_.min_background, BACKGROUND,
+                              FLOATER).astype(np.uint8)
+    out["group"] = off_idx[~far]
+    return out
 
 
 def _spread(pts, cand_idx, sidx, scls, radius) -> np.ndarray:
@@ -468,7 +610,7 @@ def _spread(pts, cand_idx, sidx, scls, radius) -> np.ndarray:
     tree = cKDTree(pts[sidx])
     q = pts[cand_idx]
     for a in range(0, len(q), 1 << 18):
-        d, i = tree.query(q[a:a + (1 << 18)], k=1, distance_upper_bound=radius, workers=-1)
+        d, i = tree.query(q[a:a + (1 << 18)], k=1, distance_upper_bound=radius, workers=_knn.WORKERS)
         c = scls[np.minimum(i, len(scls) - 1)]
         c = np.where(np.isinf(d), FLOATER, c)  # farther than the linking radius from every sample
         out[a:a + len(c)] = c
@@ -494,16 +636,50 @@ def _pot_and_soil(cloud, pts, classes, up, d0, thr, p_: IsolateParams):
     if H <= 0:
         return None, None
     basis = _plane_basis(up)
-    xy = pts[sel] @ basis
+    shape = _pot_shape(pts[sel] @ basis, hs, H, thr, p_)
+    if shape is None:
+        return None, None
+    c, r_of, h_top, step = shape
+    # every plant Gaussian: height, radial distance
+    hp = h_all - base
+    xyp = pts[plant] @ basis
+    rp = np.linalg.norm(xyp - c, axis=1)
+    is_pot, is_soil, soil_h = _pot_wall_and_soil(cloud, plant, hp, xyp, rp, c, r_of, h_top, step,
+                                                 H, thr, up, basis)
+    classes[plant[is_pot]] = POT
+    classes[plant[is_soil]] = SOIL
+    r_top = float(r_of(h_top))
+    pot = {"center": basis @ c + up * base, "axis": up.copy(), "radius_bottom": float(r_of(0.0)),
+           "radius_top": r_top, "height": h_top,
+           "soil_height": float("nan") if soil_h is None else soil_h}
+    log.debug("pot: radius %.4g -> %.4g, height %.4g, soil at %s", pot["radius_bottom"], r_top,
+              h_top, soil_h)
+    # stem base: lowest remaining plant Gaussians inside the rim
+    rest = ~(is_pot | is_soil) & (rp < r_top)
+    if rest.sum() == 0:
+        return pot, None
+    idx = np.flatnonzero(rest)
+    hr = hp[idx]
+    lo = float(np.quantile(hr, 0.002))
+    band = idx[hr <= lo + 0.01 * H]
+    med = np.median(pts[plant[band]], axis=0)
+    root = plant[band[np.argmin(np.linalg.norm(pts[plant[band]] - med, axis=1))]]
+    return pot, int(root)
+
+
+def _pot_shape(xy, hs, H, thr, p_: IsolateParams):
+    """The pot's foot circle and wall profile from the samples' in-plane positions (M, 2) and
+    heights (M,) above the ground: (centre (2,), r(h) callable, rim height, ring step) or None
+    when the lowest slab is not a wide, round, thin circle or no wall rises from it."""
     slab = 0.04 * H
     foot = hs <= slab
     if foot.sum() < 30:
-        return None, None
+        return None
     c, r, inl = _circle_fit(xy[foot])
     res = np.abs(np.linalg.norm(xy[foot] - c, axis=1) - r)
     if not (p_.min_pot_radius * H <= r <= 0.8 * H) or inl.mean() < 0.5 \
             or _coverage(xy[foot][inl], c) < 0.6 or np.median(res[inl]) > 0.05 * r:
-        return None, None
+        return None
     # climb the outer wall ring by ring: the outermost full ring near the previous radius
     step = slab / 2
     rho = np.linalg.norm(xy - c, axis=1)
@@ -531,70 +707,55 @@ def _pot_and_soil(cloud, pts, classes, up, d0, thr, p_: IsolateParams):
     rings = np.array(rings)
     h_top = float(rings[-1, 0] + step / 2)
     if h_top >= 0.7 * H or len(rings) < 3:
-        return None, None
+        return None
     slope, icpt = np.polyfit(rings[:, 0], rings[:, 1], 1)
 
     def r_of(hh):
         return icpt + slope * np.clip(hh, 0, h_top)
 
+    return c, r_of, h_top, step
+
+
+def _pot_wall_and_soil(cloud, plant, hp, xyp, rp, c, r_of, h_top, step, H, thr, up, basis):
+    """Which plant Gaussians (indices ``plant``, heights ``hp``, in-plane ``xyp``, radial
+    distances ``rp``) are the pot's wall and which its soil: (is_pot, is_soil, soil height or
+    None). The soil is the densest level of up-facing Gaussians inside the rim, spread over the
+    rim's disk; the inner wall between it and the rim (vertical, facing the axis) is pot."""
     r_top = float(r_of(h_top))
-    # every plant Gaussian: height, radial distance
-    hp = h_all - base
-    xyp = pts[plant] @ basis
-    rp = np.linalg.norm(xyp - c, axis=1)
     wall_band = 0.06 * r_of(hp) + thr
     below_rim = hp <= h_top + step
     is_pot = below_rim & (np.abs(rp - r_of(hp)) <= wall_band)
-    # soil: the densest level of up-facing Gaussians inside the rim
     inside = (rp < 0.95 * r_top) & (hp > 0.2 * h_top) & (hp < h_top + 0.1 * H) & ~is_pot
-    soil_h = None
     is_soil = np.zeros(len(plant), bool)
     cand = np.flatnonzero(inside)
-    if len(cand) >= 20:
-        nrm = cloud.subset(plant[cand]).shortest_axes()
-        flat = np.abs(nrm @ up) > 0.8
-        if flat.sum() >= 20:
-            hf = hp[cand[flat]]
-            bins = np.arange(hf.min(), hf.max() + step / 4, step / 4)
-            if len(bins) >= 2:
-                hist, edges = np.histogram(hf, bins=bins)
-                k = int(np.argmax(hist))
-                h0 = 0.5 * (edges[k] + edges[k + 1])
-                near0 = np.abs(hf - h0) <= step
-                soil_h = float(np.median(hf[near0]))
-                sig = 1.4826 * float(np.median(np.abs(hf[near0] - soil_h)))
-                tol = max(3.0 * sig, thr)
-                # a real soil surface: up-facing Gaussians spread over the rim's disk
-                spread = _coverage(xyp[cand[flat]][near0], c, 12)
-                if spread >= 0.75 and near0.sum() >= 20:
-                    is_soil = (rp < r_of(hp) + wall_band) & (hp <= soil_h + tol) & ~is_pot
-                    # the inner wall between the soil and the rim: vertical Gaussians facing the axis
-                    wall = np.flatnonzero(below_rim & (hp > soil_h + tol) & (rp >= 0.6 * r_of(hp))
-                                          & (rp <= r_of(hp) + wall_band) & ~is_pot)
-                    if len(wall):
-                        nw = cloud.subset(plant[wall]).shortest_axes().astype(np.float64)
-                        radial = (xyp[wall] - c) @ basis.T
-                        radial /= np.maximum(np.linalg.norm(radial, axis=1, keepdims=True), 1e-30)
-                        facing = np.abs(np.einsum("ij,ij->i", nw, radial)) > 0.6
-                        is_pot[wall[facing]] = True
-                    is_soil &= ~is_pot
-                else:
-                    soil_h = None
-    classes[plant[is_pot]] = POT
-    classes[plant[is_soil]] = SOIL
-    pot = {"center": basis @ c + up * base, "axis": up.copy(), "radius_bottom": float(r_of(0.0)),
-           "radius_top": r_top, "height": h_top,
-           "soil_height": float("nan") if soil_h is None else soil_h}
-    log.debug("pot: radius %.4g -> %.4g, height %.4g, soil at %s", pot["radius_bottom"], r_top,
-              h_top, soil_h)
-    # stem base: lowest remaining plant Gaussians inside the rim
-    rest = ~(is_pot | is_soil) & (rp < r_top)
-    if rest.sum() == 0:
-        return pot, None
-    idx = np.flatnonzero(rest)
-    hr = hp[idx]
-    lo = float(np.quantile(hr, 0.002))
-    band = idx[hr <= lo + 0.01 * H]
-    med = np.median(pts[plant[band]], axis=0)
-    root = plant[band[np.argmin(np.linalg.norm(pts[plant[band]] - med, axis=1))]]
-    return pot, int(root)
+    if len(cand) < 20:
+        return is_pot, is_soil, None
+    nrm = cloud.subset(plant[cand]).shortest_axes()
+    flat = np.abs(nrm @ up) > 0.8
+    if flat.sum() < 20:
+        return is_pot, is_soil, None
+    hf = hp[cand[flat]]
+    bins = np.arange(hf.min(), hf.max() + step / 4, step / 4)
+    if len(bins) < 2:
+        return is_pot, is_soil, None
+    hist, edges = np.histogram(hf, bins=bins)
+    k = int(np.argmax(hist))
+    h0 = 0.5 * (edges[k] + edges[k + 1])
+    near0 = np.abs(hf - h0) <= step
+    soil_h = float(np.median(hf[near0]))
+    sig = 1.4826 * float(np.median(np.abs(hf[near0] - soil_h)))
+    tol = max(3.0 * sig, thr)
+    # a real soil surface: up-facing Gaussians spread over the rim's disk
+    if _coverage(xyp[cand[flat]][near0], c, 12) < 0.75 or near0.sum() < 20:
+        return is_pot, is_soil, None
+    is_soil = (rp < r_of(hp) + wall_band) & (hp <= soil_h + tol) & ~is_pot
+    # the inner wall between the soil and the rim: vertical Gaussians facing the axis
+    wall = np.flatnonzero(below_rim & (hp > soil_h + tol) & (rp >= 0.6 * r_of(hp))
+                          & (rp <= r_of(hp) + wall_band) & ~is_pot)
+    if len(wall):
+        nw = cloud.subset(plant[wall]).shortest_axes().astype(np.float64)
+        radial = (xyp[wall] - c) @ basis.T
+        radial /= np.maximum(np.linalg.norm(radial, axis=1, keepdims=True), 1e-30)
+        facing = np.abs(np.einsum("ij,ij->i", nw, radial)) > 0.6
+        is_pot[wall[facing]] = True
+    return is_pot, is_soil & ~is_pot, soil_h
