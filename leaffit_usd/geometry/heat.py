@@ -28,6 +28,7 @@ component that holds no source get ``inf``.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -136,83 +137,10 @@ class GeodesicSolver:
 
     # ---- construction --------------------------------------------------------------------
     def _build(self, t_coef: float) -> None:
+        """Elements, the gradient operator, the components and the two factorisations."""
         x = self._x
         m = len(x)
-        kk = min(8, m - 1)
-        if kk >= 1:
-            d, nb = knn(x, kk + 1)
-            spacing = np.maximum(d[:, -1], 1e-12)
-        else:
-            nb = np.zeros((m, 1), np.int64)
-            spacing = np.ones(m)
-        tris = np.zeros((0, 3), np.int64)
-        if m >= 4:
-            try:
-                import potpourri3d as pp3d
-
-                loc = pp3d.PointCloudLocalTriangulation(x).get_local_triangulation().reshape(-1, 3)
-                loc = loc[(loc >= 0).all(1)]
-                tris = np.unique(np.sort(loc, 1), axis=0).astype(np.int64)
-                tris = tris[(tris[:, 0] != tris[:, 1]) & (tris[:, 1] != tris[:, 2])]
-            except Exception as exc:  # noqa: BLE001 - degenerate clouds: edges only
-                log.debug("local triangulation failed (%s); using kNN edges only", exc)
-        if len(tris):
-            p0, p1, p2 = x[tris[:, 0]], x[tris[:, 1]], x[tris[:, 2]]
-            cr = np.cross(p1 - p0, p2 - p0)
-            area = 0.5 * np.linalg.norm(cr, axis=1)
-            longest = np.sqrt(np.max([((p1 - p0) ** 2).sum(1), ((p2 - p1) ** 2).sum(1),
-                                      ((p0 - p2) ** 2).sum(1)], axis=0))
-            keep = area > SLIVER * longest**2
-            keep &= longest <= LONG_EDGE * spacing[tris].min(1)
-            tris = tris[keep]
-            area, cr = area[keep], cr[keep]
-            keep = np.ones(len(tris), bool)
-            if self._nrm is not None:
-                fn = cr / np.maximum(2 * area, 1e-300)[:, None]
-                for c in range(3):
-                    nv = self._nrm[tris[:, c]]
-                    known = np.isfinite(nv).all(1)
-                    dot = np.abs((fn * np.nan_to_num(nv)).sum(1))
-                    keep &= ~known | (dot >= ORIENT_COS)
-                    # no edge of the triangle may leave this vertex's tangent plane
-                    for o in range(3):
-                        if o != c:
-                            ev = x[tris[:, o]] - x[tris[:, c]]
-                            ev /= np.maximum(np.linalg.norm(ev, axis=1), 1e-300)[:, None]
-                            keep &= ~known | (np.abs((ev * np.nan_to_num(nv)).sum(1)) <= EDGE_SIN)
-            dropped_tris = tris[~keep]
-            tris = tris[keep]
-        else:
-            dropped_tris = tris
-        # 1-D elements where triangles do not cover: kNN edges at poorly covered points
-        cover = np.bincount(tris.ravel(), minlength=m) if len(tris) else np.zeros(m, np.int64)
-        if kk >= 1:
-            nk = min(6, kk)
-            e = np.stack([np.repeat(np.arange(m), nk), nb[:, 1:nk + 1].ravel()], 1)
-            e = np.unique(np.sort(e, 1), axis=0)
-            e = e[e[:, 0] != e[:, 1]]
-            if len(tris):
-                te = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [0, 2]]])
-                te = np.unique(np.sort(te, 1), axis=0)
-                code = lambda a: a[:, 0] * m + a[:, 1]  # noqa: E731
-                e = e[~np.isin(code(e), code(te))]
-            poor = cover < 3
-            e = e[poor[e[:, 0]] | poor[e[:, 1]]]
-            vec = x[e[:, 1]] - x[e[:, 0]]
-            ln = np.linalg.norm(vec, axis=1)
-            ok = (ln > 0) & (ln <= LONG_EDGE * spacing[e].min(1))
-            if self._nrm is not None:
-                u = vec / np.maximum(ln, 1e-300)[:, None]
-                for c in range(2):
-                    nv = self._nrm[e[:, c]]
-                    known = np.isfinite(nv).all(1)
-                    ok &= ~known | (np.abs((u * np.nan_to_num(nv)).sum(1)) <= EDGE_SIN)
-            good = (ln > 0) & (ln <= LONG_EDGE * spacing[e].min(1))
-            edges, dropped_edges = e[ok], e[good & ~ok]
-        else:
-            edges = dropped_edges = np.zeros((0, 2), np.int64)
-        if self._nrm is not None:
-            tris, edges = _reconnect(m, tris, edges, dropped_tris, dropped_edges)
+        tris, edges = _mesh_elements(x, self._nrm)
         if self._bridge_gap is not None and self._bridge_gap > 0:
             self.bridges = _bridge(x, tris, edges, float(self._bridge_gap), self._bridge_min)
             if len(self.bridges):
@@ -220,81 +148,18 @@ class GeodesicSolver:
                          float(np.linalg.norm(x[self.bridges[:, 0]] - x[self.bridges[:, 1]], axis=1).max()))
                 edges = np.r_[edges, self.bridges]
         self.triangles, self.edges = tris, edges
-
-        # gradient operator G (3E x m) and element measures a (E,)
-        rows, cols, vals = [], [], []
-        if len(tris):
-            p = [x[tris[:, c]] for c in range(3)]
-            cr = np.cross(p[1] - p[0], p[2] - p[0])
-            dbl = np.linalg.norm(cr, axis=1)
-            nh = cr / dbl[:, None]
-            opp = [p[2] - p[1], p[0] - p[2], p[1] - p[0]]
-            base = np.arange(len(tris)) * 3
-            for c in range(3):
-                g = np.cross(nh, opp[c]) / dbl[:, None]
-                for k in range(3):
-                    rows.append(base + k), cols.append(tris[:, c]), vals.append(g[:, k])
-            tri_a = dbl / 2
-        else:
-            tri_a = np.zeros(0)
-        h_edges = []
-        if len(tris):
-            h_edges.append(np.linalg.norm(opp[0], axis=1))
-        if len(edges):
-            vec = x[edges[:, 1]] - x[edges[:, 0]]
-            ln = np.linalg.norm(vec, axis=1)
-            h_edges.append(ln)
-        h = float(np.mean(np.concatenate(h_edges))) if h_edges else 1.0
-        if len(edges):
-            u = vec / ln[:, None] ** 2
-            base = 3 * len(tris) + np.arange(len(edges)) * 3
-            for k in range(3):
-                rows += [base + k, base + k]
-                cols += [edges[:, 1], edges[:, 0]]
-                vals += [u[:, k], -u[:, k]]
-            edge_a = ln * h
-        else:
-            edge_a = np.zeros(0)
-        n_el = len(tris) + len(edges)
-        G = sp.csr_matrix((np.concatenate(vals) if vals else np.zeros(0),
-                           (np.concatenate(rows) if rows else np.zeros(0, int),
-                            np.concatenate(cols) if cols else np.zeros(0, int))),
-                          shape=(3 * n_el, m))
-        a = np.concatenate([tri_a, edge_a])
-        a3 = np.repeat(a, 3)
-        mass = np.zeros(m)
-        if len(tris):
-            np.add.at(mass, tris.ravel(), np.repeat(tri_a / 3, 3))
-        if len(edges):
-            np.add.at(mass, edges.ravel(), np.repeat(edge_a / 2, 2))
-        mass = np.maximum(mass, 1e-3 * h * h)  # isolated points keep the systems definite
-        L = (G.T @ sp.diags(a3) @ G).tocsc()
-        Mm = sp.diags(mass)
+        op = _operator(x, tris, edges)
+        h = op.h
         self.h = h
         self.t = t_coef * h * h
-        self._G, self._a3, self._mass = G, a3, mass
-        adj = abs(L) + sp.eye(m)
+        self._G, self._a3, self._mass = op.G, op.a3, op.mass
+        adj = abs(op.L) + sp.eye(m)
         ncomp, comp = connected_components(adj, directed=False)
         self.n_components = int(ncomp)
         self.domain_component = comp.astype(np.int64)
-        opts = dict(permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True))
         if not (h > 0 and np.isfinite(h)) or h < 1e-9 * max(float(np.ptp(x, 0).max()), 1e-300):
             raise ParameterError("points", "a cloud with distinct points", f"mean spacing {h:g}")
-        # Heat step with the positive part of the cotan weights: an M-matrix, so u >= 0 and the
-        # triangular solves keep tiny far-field values relatively accurate (the full cotan
-        # Laplacian of a point-cloud triangle soup has obtuse slivers; with it, u loses all
-        # precision where it falls below 1e-14 of its peak and the gradient there is noise).
-        off = (L - sp.diags(L.diagonal())).tocsr()
-        off.data = np.minimum(off.data, 0.0)
-        off.eliminate_zeros()
-        Lpos = off - sp.diags(np.asarray(off.sum(1)).ravel())
-        try:
-            self._heat = spla.splu((Mm + self.t * Lpos).tocsc(), **opts)
-            # tiny mass term: removes the constant null space of each component
-            self._poisson = spla.splu((L + 1e-6 * Mm).tocsc(), **opts)
-        except RuntimeError as exc:  # singular: a degenerate cloud (all points nearly coincide)
-            raise ParameterError("points", "a cloud with a non-degenerate extent",
-                                 f"a singular Laplacian ({exc})") from None
+        self._heat, self._poisson = _factor(op, self.t)
 
     # ---- solves ------------------------------------------------------------------------
     def adjacency(self, lengths: bool = False) -> sp.csr_matrix:
@@ -315,6 +180,24 @@ class GeodesicSolver:
     @property
     def n_points(self) -> int:
         return len(self.points)
+
+    @property
+    def domain_points(self) -> np.ndarray:
+        """(M, 3) float64 positions of the domain points (``points[domain]``; do not modify)."""
+        return self._x
+
+    def nearest_domain(self, point_indices) -> np.ndarray:
+        """Domain position (index into ``domain``) of the domain point nearest each given point.
+
+        point_indices : int or (K,) int indices into ``points``; returns an int64 of the same shape.
+        A domain point is its own nearest (``nearest_domain(domain) == arange(M)``).
+        """
+        return self._near[point_indices]
+
+    def domain_neighbors(self, position: np.ndarray, k: int) -> np.ndarray:
+        """(k,) int64 domain positions of the k domain points nearest ``position`` ((3,) float,
+        the points' frame), nearest first (Euclidean)."""
+        return np.atleast_1d(self._tree.query(position, k=k)[1])
 
     def _to_domain(self, sources) -> np.ndarray:
         src = np.atleast_1d(np.asarray(sources, np.int64))
@@ -380,6 +263,213 @@ class GeodesicSolver:
     def distance(self, sources) -> np.ndarray:
         """(N,) float64 geodesic distance from ``sources`` (an index or a list: nearest source)."""
         return self.distances([sources])[:, 0]
+
+
+# ---- operator construction (GeodesicSolver._build's steps) ---------------------------------
+@dataclass
+class _Operator:
+    """The discrete operators on M domain points and E elements (triangles first, then edges).
+
+    G : (3E, M) csr gradient (a constant gradient per element); a3 : (3E,) element measure,
+    repeated per coordinate; mass : (M,) lumped mass; L : (M, M) csc Laplacian G^T diag(a3) G;
+    h : mean element edge length (points' units).
+    """
+
+    G: sp.csr_matrix
+    a3: np.ndarray
+    mass: np.ndarray
+    L: sp.csc_matrix
+    h: float
+
+
+def _mesh_elements(x: np.ndarray, nrm: np.ndarray | None):
+    """Triangles (T, 3) int64 and 1-D edges (E, 2) int64 on the domain points ``x`` (M, 3);
+    with normals ``nrm`` (M, 3) (NaN rows unknown), orientation-dropped elements that cut a piece
+    off are given back (:func:`_reconnect`)."""
+    m = len(x)
+    kk = min(8, m - 1)
+    if kk >= 1:
+        d, nb = knn(x, kk + 1)
+        spacing = np.maximum(d[:, -1], 1e-12)
+    else:
+        nb = np.zeros((m, 1), np.int64)
+        spacing = np.ones(m)
+    tris = _local_triangles(x)
+    if len(tris):
+        tris, dropped_tris = _filter_triangles(x, tris, spacing, nrm)
+    else:
+        dropped_tris = tris
+    if kk >= 1:
+        edges, dropped_edges = _thin_region_edges(x, tris, nb[:, 1:min(6, kk) + 1], spacing, nrm)
+    else:
+        edges = dropped_edges = np.zeros((0, 2), np.int64)
+    if nrm is not None:
+        tris, edges = _reconnect(m, tris, edges, dropped_tris, dropped_edges)
+    return tris, edges
+
+
+def _local_triangles(x: np.ndarray) -> np.ndarray:
+    """(T, 3) int64 sorted, deduplicated triangles of geometry-central's local Delaunay
+    triangulation of ``x`` (M, 3); none for fewer than 4 points or a degenerate cloud."""
+    tris = np.zeros((0, 3), np.int64)
+    if len(x) >= 4:
+        try:
+            import potpourri3d as pp3d
+
+            loc = pp3d.PointCloudLocalTriangulation(x).get_local_triangulation().reshape(-1, 3)
+            loc = loc[(loc >= 0).all(1)]
+            tris = np.unique(np.sort(loc, 1), axis=0).astype(np.int64)
+            tris = tris[(tris[:, 0] != tris[:, 1]) & (tris[:, 1] != tris[:, 2])]
+        except Exception as exc:  # noqa: BLE001 - degenerate clouds: edges only
+            log.debug("local triangulation failed (%s); using kNN edges only", exc)
+    return tris
+
+
+def _filter_triangles(x, tris, spacing, nrm):
+    """(kept, dropped) triangles: slivers and over-long triangles go (not into ``dropped``); with
+    normals, triangles that leave a vertex's tangent plane are ``dropped`` (may be given back).
+
+    x : (M, 3); tris : (T, 3) int64; spacing : (M,) 8th-neighbour distance; nrm : (M, 3) or None.
+    """
+    p0, p1, p2 = x[tris[:, 0]], x[tris[:, 1]], x[tris[:, 2]]
+    cr = np.cross(p1 - p0, p2 - p0)
+    area = 0.5 * np.linalg.norm(cr, axis=1)
+    longest = np.sqrt(np.max([((p1 - p0) ** 2).sum(1), ((p2 - p1) ** 2).sum(1),
+                              ((p0 - p2) ** 2).sum(1)], axis=0))
+    keep = area > SLIVER * longest**2
+    keep &= longest <= LONG_EDGE * spacing[tris].min(1)
+    tris = tris[keep]
+    area, cr = area[keep], cr[keep]
+    keep = np.ones(len(tris), bool)
+    if nrm is not None:
+        fn = cr / np.maximum(2 * area, 1e-300)[:, None]
+        for c in range(3):
+            nv = nrm[tris[:, c]]
+            known = np.isfinite(nv).all(1)
+            dot = np.abs((fn * np.nan_to_num(nv)).sum(1))
+            keep &= ~known | (dot >= ORIENT_COS)
+            # no edge of the triangle may leave this vertex's tangent plane
+            for o in range(3):
+                if o != c:
+                    ev = x[tris[:, o]] - x[tris[:, c]]
+                    ev /= np.maximum(np.linalg.norm(ev, axis=1), 1e-300)[:, None]
+                    keep &= ~known | (np.abs((ev * np.nan_to_num(nv)).sum(1)) <= EDGE_SIN)
+    return tris[keep], tris[~keep]
+
+
+def _thin_region_edges(x, tris, nb, spacing, nrm):
+    """(kept, dropped) 1-D elements where triangles do not cover: kNN edges (not triangle sides)
+    at points in fewer than 3 triangles, no longer than LONG_EDGE x spacing; with normals, edges
+    that leave an end's tangent plane are ``dropped`` (may be given back).
+
+    x : (M, 3); tris : (T, 3) int64; nb : (M, k) int64 nearest neighbours (self excluded);
+    spacing : (M,); nrm : (M, 3) or None.
+    """
+    m = len(x)
+    cover = np.bincount(tris.ravel(), minlength=m) if len(tris) else np.zeros(m, np.int64)
+    e = np.stack([np.repeat(np.arange(m), nb.shape[1]), nb.ravel()], 1)
+    e = np.unique(np.sort(e, 1), axis=0)
+    e = e[e[:, 0] != e[:, 1]]
+    if len(tris):
+        te = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [0, 2]]])
+        te = np.unique(np.sort(te, 1), axis=0)
+        code = lambda a: a[:, 0] * m + a[:, 1]  # noqa: E731
+        e = e[~np.isin(code(e), code(te))]
+    poor = cover < 3
+    e = e[poor[e[:, 0]] | poor[e[:, 1]]]
+    vec = x[e[:, 1]] - x[e[:, 0]]
+    ln = np.linalg.norm(vec, axis=1)
+    ok = (ln > 0) & (ln <= LONG_EDGE * spacing[e].min(1))
+    if nrm is not None:
+        u = vec / np.maximum(ln, 1e-300)[:, None]
+        for c in range(2):
+            nv = nrm[e[:, c]]
+            known = np.isfinite(nv).all(1)
+            ok &= ~known | (np.abs((u * np.nan_to_num(nv)).sum(1)) <= EDGE_SIN)
+    good = (ln > 0) & (ln <= LONG_EDGE * spacing[e].min(1))
+    return e[ok], e[good & ~ok]
+
+
+def _operator(x: np.ndarray, tris: np.ndarray, edges: np.ndarray) -> _Operator:
+    """Gradient operator, element measures, lumped mass and Laplacian of the element soup.
+
+    Triangles: the constant gradient of the linear hat functions, measure = area. Edges: the
+    derivative along the edge, measure = length x h (h = mean element edge length).
+    """
+    m = len(x)
+    rows, cols, vals = [], [], []
+    if len(tris):
+        p = [x[tris[:, c]] for c in range(3)]
+        cr = np.cross(p[1] - p[0], p[2] - p[0])
+        dbl = np.linalg.norm(cr, axis=1)
+        nh = cr / dbl[:, None]
+        opp = [p[2] - p[1], p[0] - p[2], p[1] - p[0]]
+        base = np.arange(len(tris)) * 3
+        for c in range(3):
+            g = np.cross(nh, opp[c]) / dbl[:, None]
+            for k in range(3):
+                rows.append(base + k), cols.append(tris[:, c]), vals.append(g[:, k])
+        tri_a = dbl / 2
+    else:
+        tri_a = np.zeros(0)
+    h_edges = []
+    if len(tris):
+        h_edges.append(np.linalg.norm(opp[0], axis=1))
+    if len(edges):
+        vec = x[edges[:, 1]] - x[edges[:, 0]]
+        ln = np.linalg.norm(vec, axis=1)
+        h_edges.append(ln)
+    h = float(np.mean(np.concatenate(h_edges))) if h_edges else 1.0
+    if len(edges):
+        u = vec / ln[:, None] ** 2
+        base = 3 * len(tris) + np.arange(len(edges)) * 3
+        for k in range(3):
+            rows += [base + k, base + k]
+            cols += [edges[:, 1], edges[:, 0]]
+            vals += [u[:, k], -u[:, k]]
+        edge_a = ln * h
+    else:
+        edge_a = np.zeros(0)
+    n_el = len(tris) + len(edges)
+    G = sp.csr_matrix((np.concatenate(vals) if vals else np.zeros(0),
+                       (np.concatenate(rows) if rows else np.zeros(0, int),
+                        np.concatenate(cols) if cols else np.zeros(0, int))),
+                      shape=(3 * n_el, m))
+    a = np.concatenate([tri_a, edge_a])
+    a3 = np.repeat(a, 3)
+    mass = np.zeros(m)
+    if len(tris):
+        np.add.at(mass, tris.ravel(), np.repeat(tri_a / 3, 3))
+    if len(edges):
+        np.add.at(mass, edges.ravel(), np.repeat(edge_a / 2, 2))
+    mass = np.maximum(mass, 1e-3 * h * h)  # isolated points keep the systems definite
+    L = (G.T @ sp.diags(a3) @ G).tocsc()
+    return _Operator(G=G, a3=a3, mass=mass, L=L, h=h)
+
+
+def _factor(op: _Operator, t: float):
+    """(heat, poisson) sparse LU factorisations: ``M + t L+`` and ``L + 1e-6 M``.
+
+    Heat step with the positive part of the cotan weights (L+): an M-matrix, so u >= 0 and the
+    triangular solves keep tiny far-field values relatively accurate (the full cotan Laplacian of
+    a point-cloud triangle soup has obtuse slivers; with it, u loses all precision where it falls
+    below 1e-14 of its peak and the gradient there is noise). Raises ParameterError on a singular
+    system (a degenerate cloud).
+    """
+    L, Mm = op.L, sp.diags(op.mass)
+    opts = dict(permc_spec="MMD_AT_PLUS_A", options=dict(SymmetricMode=True))
+    off = (L - sp.diags(L.diagonal())).tocsr()
+    off.data = np.minimum(off.data, 0.0)
+    off.eliminate_zeros()
+    Lpos = off - sp.diags(np.asarray(off.sum(1)).ravel())
+    try:
+        heat = spla.splu((Mm + t * Lpos).tocsc(), **opts)
+        # tiny mass term: removes the constant null space of each component
+        poisson = spla.splu((L + 1e-6 * Mm).tocsc(), **opts)
+    except RuntimeError as exc:  # singular: a degenerate cloud (all points nearly coincide)
+        raise ParameterError("points", "a cloud with a non-degenerate extent",
+                             f"a singular Laplacian ({exc})") from None
+    return heat, poisson
 
 
 def _components(m, tris, edges):

@@ -153,3 +153,22 @@ def test_adjacency_graph():
     w = s.adjacency(lengths=True)
     r = np.repeat(np.arange(500), np.diff(w.indptr))
     assert np.allclose(w.data, np.linalg.norm(s._x[r] - s._x[w.indices], axis=1))
+
+
+def test_domain_lookups():
+    """The public domain API the segmentation uses: positions, nearest domain point, kNN."""
+    p = _plane(6000, seed=5)
+    s = GeodesicSolver(p, domain=1000)
+    m = len(s.domain)
+    assert np.array_equal(s.domain_points, p[s.domain])
+    assert np.array_equal(s.nearest_domain(s.domain), np.arange(m))
+    q = np.arange(0, 6000, 7)
+    near = s.nearest_domain(q)
+    brute = np.argmin(((p[q][:, None] - s.domain_points[None]) ** 2).sum(-1), axis=1)
+    assert near.shape == q.shape and np.array_equal(near, brute)
+    assert int(s.nearest_domain(int(s.domain[3]))) == 3
+    nb = s.domain_neighbors(s.domain_points[10], 8)
+    d = np.linalg.norm(s.domain_points - s.domain_points[10], axis=1)
+    assert nb.shape == (8,) and nb[0] == 10 and np.all(np.diff(d[nb]) >= 0)
+    assert np.array_equal(np.sort(d[nb]), np.sort(d)[:8])
+    assert s.domain_neighbors(s.domain_points[10], 1).shape == (1,)
