@@ -80,7 +80,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 from scipy.sparse.csgraph import connected_components
@@ -254,6 +254,78 @@ class _Tree:
     ring: np.ndarray | None = None  # (M,) cross-section ring id of every domain point
 
 
+@dataclass
+class _Geodesics:
+    """The apex method's geodesic domain and D_r (steps 1-2 of the module docstring).
+
+    solver : the heat-method operator on the FPS samples plus the random domain subset
+    inlier : (N,) bool, not a floater (the root always is)
+    d_root : (N,) float64 D_r, working units; inf at floaters and pieces apart from the root
+    reach : (N,) bool, finite ``d_root``
+    samples : (S,) int64 Gaussians, the FPS samples connected to the root (the root included)
+    """
+
+    solver: GeodesicSolver
+    inlier: np.ndarray
+    d_root: np.ndarray
+    reach: np.ndarray
+    samples: np.ndarray
+
+
+@dataclass
+class _ApexTree:
+    """Apexes and the rootward tree (step 3).
+
+    apex_g : (A,) int64 apex Gaussians, largest D_r first
+    apex_d : (A,) int64 their domain positions
+    tree : the rootward tree over domain positions
+    paths : A arrays of tree node indices, apex -> root
+    dr_dom : (M,) float64 D_r at the domain points
+    """
+
+    apex_g: np.ndarray
+    apex_d: np.ndarray
+    tree: _Tree
+    paths: list
+    dr_dom: np.ndarray
+
+
+@dataclass
+class _Leaves:
+    """Per apex group (step 5), before the labels.
+
+    groups : (G,) int group ids (sorted); dist : (N, G) float64 D_a from each group's primary tip
+    (inf at floaters); keep : columns of the groups that are leaves (a blade was found);
+    tip, base : Gaussian indices, base_dist : D_a at the base, one per kept group
+    """
+
+    groups: np.ndarray
+    dist: np.ndarray
+    keep: list
+    tip: list
+    base: list
+    base_dist: list
+
+
+@dataclass
+class _RingWidths:
+    """Surface cross-section width at a domain point: its ring's extent, cached per ring.
+
+    x : (M, 3) domain points, working frame; ring : (M,) ring id of each (``_Tree.ring``).
+    """
+
+    x: np.ndarray
+    ring: np.ndarray
+    cache: dict = field(default_factory=dict)
+
+    def __call__(self, node_d: int) -> float:
+        r = int(self.ring[node_d])
+        if r not in self.cache:
+            mem = self.x[self.ring == r]
+            self.cache[r] = float(np.sqrt(((mem - self.x[node_d]) ** 2).sum(1).max())) if len(mem) else 0.0
+        return self.cache[r]
+
+
 def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentParams | None = None,
                   normals: np.ndarray | None = None, timings: dict | None = None) -> Segmentation:
     """Automatic leaf instance segmentation of one plant.
@@ -268,6 +340,24 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
     Gaussians outside the connected component of the root are left unassigned (0), with a warning.
     """
     p = (params or SegmentParams()).validate()
+    pts = _checked_points(points_working)
+    n = len(pts)
+    if not (isinstance(root_index, (int, np.integer)) and 0 <= root_index < n):
+        raise ParameterError("root_index", f"an index in [0, {n})", root_index)
+    root = int(root_index)
+    tm = timings if timings is not None else {}
+    t0 = time.perf_counter()
+    inlier = inlier_mask(pts, p.outlier_factor)
+    inlier[root] = True
+    if (~inlier).any():
+        log.info("%d isolated Gaussians (floaters) left out of the segmentation", int((~inlier).sum()))
+    if p.method == "blades":
+        return _segment_blades(pts, root, inlier, normals, p, tm, t0)
+    return _segment_apex(pts, root, inlier, normals, p, tm, t0)
+
+
+def _checked_points(points_working) -> np.ndarray:
+    """(N, 3) float64 of the caller's points, or ParameterError / UserError saying what is wrong."""
     pts = np.asarray(points_working, np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ParameterError("points", "an (N, 3) array", getattr(pts, "shape", None))
@@ -279,20 +369,58 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
     if float(np.ptp(pts, 0).max()) < 1e-6:
         raise UserError("the cloud has no extent (all Gaussians at one point, working units): "
                         "nothing to segment")
-    if not (isinstance(root_index, (int, np.integer)) and 0 <= root_index < n):
-        raise ParameterError("root_index", f"an index in [0, {n})", root_index)
-    root = int(root_index)
-    tm = timings if timings is not None else {}
-    t0 = time.perf_counter()
+    return pts
 
-    # -- outliers, samples and geodesic domain ----------------------------------------------
+
+def _segment_apex(pts, root, inlier, normals, p: SegmentParams, tm: dict, t0: float) -> Segmentation:
+    """The paper's method (steps 1-5 of the module docstring), with our deviations as ``p`` says."""
+    n = len(pts)
+    samples, domain = _sample_domain(pts, root, inlier, p)
+    tm["sampling"] = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    nrm = normals if (normals is not None and p.orientation_aware) else None
+    solver = GeodesicSolver(pts, nrm, domain=domain, t_coef=p.t_coef,
+                            bridge_gap=p.bridge_gap if p.bridge_gap > 0 else None)
+    tm["geodesic_build"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    geo = _root_distance(solver, root, inlier, samples)
+    tm["distance_root"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    apex_g = _find_apexes(pts, geo, root, p)
+    tm["apexes"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    at = _apex_tree(geo, apex_g, root, p)
+    tm["tree"] = time.perf_counter() - t1
+    seg_params = asdict(p)
+    if len(apex_g) == 0:
+        log.warning("no leaf apex found (no sample is a strict local maximum of the distance "
+                    "from the root over its %d neighbours): every Gaussian is stem",
+                    int(min(p.n_neighbors, len(geo.samples) - 1)))
+        return _result(n, root, solver.domain, at.tree, np.zeros(0, np.int64), np.zeros(0, np.int32),
+                       [], [], np.zeros(n, np.int32), geo.d_root, seg_params)
+    t1 = time.perf_counter()
+    Dd = solver.domain_distances([[int(a)] for a in at.apex_d])  # (M, A) D_a on the domain
+    group = _group_apexes(geo, at, Dd, p)
+    tm["grouping"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    leaves = _leaf_bases(pts, geo, at, group, Dd, p)
+    labels, group_label, leaf_tip, leaf_base = _label_leaves(geo.d_root, leaves)
+    labels[~geo.reach | ~inlier] = 0
+    if (~inlier).any() and inlier.sum() > 1:
+        _attach_outliers(pts, labels, geo.d_root, inlier, geo.reach, p)
+    apex_labels = group_label[np.searchsorted(leaves.groups, group)].astype(np.int32)
+    tm["petiole_labels"] = time.perf_counter() - t1
+    tm["total"] = time.perf_counter() - t0
+    log.info("segmentation: %d apexes, %d leaves (%.2f s)", len(apex_g), int(labels.max(initial=0)),
+             tm["total"])
+    return _result(n, root, solver.domain, at.tree, apex_g, apex_labels, leaf_tip, leaf_base, labels,
+                   geo.d_root, seg_params)
+
+
+def _sample_domain(pts, root, inlier, p: SegmentParams):
+    """(samples, domain): (S,) int64 FPS samples of the inliers (the root included) and (M,) int64
+    the geodesic domain, the samples plus ``geodesic_points`` random inliers (seeded by ``p.seed``)."""
     rng = np.random.default_rng(p.seed)
-    inlier = inlier_mask(pts, p.outlier_factor)
-    inlier[root] = True
-    if (~inlier).any():
-        log.info("%d isolated Gaussians (floaters) left out of the segmentation", int((~inlier).sum()))
-    if p.method == "blades":
-        return _segment_blades(pts, root, inlier, normals, p, tm, t0)
     pool = np.flatnonzero(inlier)
     if len(pool) > p.fps_candidates > 0:  # FPS cost is O(N N_s): run it on a random subset
         pool = np.union1d(rng.choice(pool, p.fps_candidates, replace=False), [root])
@@ -302,34 +430,32 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
         samples = np.union1d(samples, [root])
     inl = np.flatnonzero(inlier)
     extra = rng.choice(inl, size=min(len(inl), p.geodesic_points), replace=False)
-    domain = np.union1d(samples, extra)
-    tm["sampling"] = time.perf_counter() - t0
+    return samples, np.union1d(samples, extra)
 
-    t1 = time.perf_counter()
-    nrm = normals if (normals is not None and p.orientation_aware) else None
-    solver = GeodesicSolver(pts, nrm, domain=domain, t_coef=p.t_coef,
-                            bridge_gap=p.bridge_gap if p.bridge_gap > 0 else None)
-    tm["geodesic_build"] = time.perf_counter() - t1
 
-    t1 = time.perf_counter()
+def _root_distance(solver: GeodesicSolver, root, inlier, samples) -> _Geodesics:
+    """D_r from the root; floaters and pieces apart from the root are unreached (warned about)."""
     d_root = solver.distance(root)
     d_root[~inlier] = np.inf  # floaters are left out: not reached
     reach = np.isfinite(d_root)
+    n = len(d_root)
     lost = int((~reach & inlier).sum())  # connected pieces apart from the root's
     if lost:
         (log.warning if lost > 0.005 * n else log.info)(
             "the cloud is disconnected: %d of %d Gaussians are not connected to the root and stay "
             "unassigned", lost, n)
-    samples = samples[reach[samples]]
-    tm["distance_root"] = time.perf_counter() - t1
+    return _Geodesics(solver=solver, inlier=inlier, d_root=d_root, reach=reach,
+                      samples=samples[reach[samples]])
 
-    # -- apexes ---------------------------------------------------------------------------------
-    t1 = time.perf_counter()
+
+def _find_apexes(pts, geo: _Geodesics, root, p: SegmentParams) -> np.ndarray:
+    """(A,) int64 apex Gaussians, largest D_r first: samples whose D_r is a strict maximum over
+    their N_k nearest samples (with ``apex_surface_neighbors``, those also near on the surface)."""
+    samples = geo.samples
     sp_pts = pts[samples]
-    dr_s = d_root[samples]
+    dr_s = geo.d_root[samples]
     tree_kd = cKDTree(sp_pts)
-    s = len(samples)
-    nk = int(min(p.n_neighbors, s - 1))
+    nk = int(min(p.n_neighbors, len(samples) - 1))
     apex_local = np.zeros(0, np.int64)
     if nk >= 1:
         kq = int(min(16, nk))
@@ -342,140 +468,143 @@ def segment_plant(points_working: np.ndarray, root_index: int, params: SegmentPa
             d_c, nb_c = d_c.reshape(len(cand), -1), nb_c.reshape(len(cand), -1)
             others = np.where(nb_c == cand[:, None], -1, nb_c)  # drop self
             if p.apex_surface_neighbors:
-                others = _surface_filter(solver, samples, cand, others, d_c)
+                others = _surface_filter(geo.solver, samples, cand, others, d_c)
             vals = np.where(others >= 0, dr_s[np.maximum(others, 0)], -np.inf)
             apex_local = cand[(vals < dr_s[cand, None]).all(1)]
-    tm["apexes"] = time.perf_counter() - t1
-
-    # -- tree -------------------------------------------------------------------------------------
-    t1 = time.perf_counter()
     order = apex_local[np.argsort(-dr_s[apex_local], kind="stable")]
-    dr_dom = d_root[solver.domain]
-    tree, apex_paths = _build_tree(solver, dr_dom, samples[order], root, p)
-    tm["tree"] = time.perf_counter() - t1
+    return samples[order]
 
-    seg_params = asdict(p)
-    if len(order) == 0:
-        log.warning("no leaf apex found (no sample is a strict local maximum of the distance "
-                    "from the root over its %d neighbours): every Gaussian is stem", nk)
-        return _result(n, root, solver.domain, tree, np.zeros(0, np.int64), np.zeros(0, np.int32),
-                       [], [], np.zeros(n, np.int32), d_root, seg_params)
 
-    # -- D_a for every apex, grouping -----------------------------------------------------------
-    t1 = time.perf_counter()
-    apex_g = samples[order]
-    dom_apex = solver._near[apex_g]
-    Dd = solver.domain_distances([[int(a)] for a in dom_apex])  # (M, A) on the domain
-    A = len(order)
+def _apex_tree(geo: _Geodesics, apex_g, root, p: SegmentParams) -> _ApexTree:
+    """The rootward tree through every apex (:func:`_build_tree`)."""
+    solver = geo.solver
+    dr_dom = geo.d_root[solver.domain]
+    tree, paths = _build_tree(solver, dr_dom, apex_g, root, p)
+    return _ApexTree(apex_g=apex_g, apex_d=solver.nearest_domain(apex_g), tree=tree,
+                     paths=[np.asarray(pth) for pth in paths], dr_dom=dr_dom)
 
-    def da(j, gauss):  # D_a of apex j at Gaussians that are domain nodes (samples are)
-        return Dd[solver._near[gauss], j]
 
-    widths = {}
+def _group_apexes(geo: _Geodesics, at: _ApexTree, Dd, p: SegmentParams) -> np.ndarray:
+    """(A,) int group id per apex: apexes on one leaf (the tau test and ours, see SegmentParams)
+    are joined, the groups are the connected components.
 
-    def ring_width(node_d):  # surface cross-section width at a domain point: its ring's extent
-        r = int(tree.ring[node_d])
-        if r not in widths:
-            mem = solver._x[tree.ring == r]
-            widths[r] = float(np.sqrt(((mem - solver._x[node_d]) ** 2).sum(1).max())) if len(mem) else 0.0
-        return widths[r]
-
-    def on_blade(i, k_lca, lca):
-        """Does apex i's path cross a ring at least epsilon wide within epsilon (in D_r) before
-        reaching the LCA? (Lobes of one blade meet where the blade fans out; two leaves meet on
-        the stem, each coming down a petiole.)"""
-        d0 = dr_dom[tree.nodes[lca]]
-        for v in anc[i][:k_lca][::-1].tolist():
-            node_d = tree.nodes[v]
-            if dr_dom[node_d] > d0 + p.epsilon:
-                return False
-            if ring_width(node_d) >= p.epsilon:
-                return True
-        return False
-
-    def all_blade(i, k_lca):
-        """Does apex i's path, once past its narrow tip (a ring at least epsilon wide), stay on
-        the blade down to the LCA, never passing a petiole (a ring narrower than epsilon and, with
-        ``petiole_relative``, than that fraction of the widest ring seen: the petiole rule)?"""
-        w = np.asarray([ring_width(tree.nodes[v]) for v in anc[i][:k_lca + 1].tolist()])
-        wide = np.flatnonzero(w >= p.epsilon)
-        if not len(wide):
-            return False
-        w = w[wide[0]:]
-        petiole = w < p.epsilon
-        if p.petiole_relative > 0:
-            petiole &= w < p.petiole_relative * np.maximum.accumulate(w)
-        return not petiole.any()
-
+    Dd : (M, A) float64 D_a of every apex on the domain points.
+    """
+    widths = _RingWidths(geo.solver.domain_points, at.tree.ring)
+    anc = at.paths  # tree node indices, apex -> root
+    A = len(at.apex_g)
     adj_r, adj_c = [], []
-    anc = [np.asarray(pth) for pth in apex_paths]  # tree node indices, apex -> root
     for i in range(A):
         set_i = {v: k for k, v in enumerate(anc[i].tolist())}
         for j in range(i + 1, A):
-            pos_j = {v: k for k, v in enumerate(anc[j].tolist())}
             lca = next((v for v in anc[j].tolist() if v in set_i), None)
             if lca is None:
                 continue
-            lca_g = solver.domain[tree.nodes[lca]]
-            direct = 0.5 * (Dd[dom_apex[j], i] + Dd[dom_apex[i], j])
-            via = da(i, lca_g) + da(j, lca_g)
-            log.debug("apex pair %d,%d: direct %.3f via lca %.3f (lca D_r %.3f)", i, j, direct, via,
-                      d_root[lca_g])
-            if p.tau_relative > 0 and direct < (1 - p.tau_relative) * via and (
-                    all_blade(i, set_i[lca]) and all_blade(j, pos_j[lca])):
-                adj_r.append(i), adj_c.append(j)  # lobes of one blade (see tau_relative)
-                continue
-            if direct < via - p.tau and (not p.lca_on_blade or (on_blade(i, set_i[lca], lca)
-                                                                and on_blade(j, pos_j[lca], lca))):
+            pos_j = {v: k for k, v in enumerate(anc[j].tolist())}
+            if _one_leaf(geo, at, Dd, widths, (i, set_i[lca]), (j, pos_j[lca]), lca, p):
                 adj_r.append(i), adj_c.append(j)
     g = coo_matrix((np.ones(len(adj_r)), (adj_r, adj_c)), shape=(A, A))
-    _, group = connected_components(g, directed=False)
-    tm["grouping"] = time.perf_counter() - t1
+    return connected_components(g, directed=False)[1]
 
-    # -- petiole base per group, labels ---------------------------------------------------------
-    t1 = time.perf_counter()
+
+def _one_leaf(geo: _Geodesics, at: _ApexTree, Dd, widths: _RingWidths, ik, jk, lca,
+              p: SegmentParams) -> bool:
+    """Are apexes i and j on one leaf? ik, jk : (apex, position of the LCA on its path); lca : the
+    LCA's tree node. Lobes of one blade (``tau_relative``), or the paper's tau test (with
+    ``lca_on_blade``, both paths coming to the LCA over a blade)."""
+    (i, ki), (j, kj) = ik, jk
+    lca_d = int(geo.solver.nearest_domain(geo.solver.domain[at.tree.nodes[lca]]))
+    direct = 0.5 * (Dd[at.apex_d[j], i] + Dd[at.apex_d[i], j])
+    via = Dd[lca_d, i] + Dd[lca_d, j]
+    log.debug("apex pair %d,%d: direct %.3f via lca %.3f (lca D_r %.3f)", i, j, direct, via,
+              at.dr_dom[at.tree.nodes[lca]])
+    if p.tau_relative > 0 and direct < (1 - p.tau_relative) * via and (
+            _all_blade(at, widths, i, ki, p) and _all_blade(at, widths, j, kj, p)):
+        return True  # lobes of one blade (see tau_relative)
+    return bool(direct < via - p.tau and (not p.lca_on_blade or (
+        _on_blade(at, widths, i, ki, lca, p) and _on_blade(at, widths, j, kj, lca, p))))
+
+
+def _on_blade(at: _ApexTree, widths: _RingWidths, i, k_lca, lca, p: SegmentParams) -> bool:
+    """Does apex i's path cross a ring at least epsilon wide within epsilon (in D_r) before
+    reaching the LCA? (Lobes of one blade meet where the blade fans out; two leaves meet on
+    the stem, each coming down a petiole.)"""
+    tree = at.tree
+    d0 = at.dr_dom[tree.nodes[lca]]
+    for v in at.paths[i][:k_lca][::-1].tolist():
+        node_d = tree.nodes[v]
+        if at.dr_dom[node_d] > d0 + p.epsilon:
+            return False
+        if widths(node_d) >= p.epsilon:
+            return True
+    return False
+
+
+def _all_blade(at: _ApexTree, widths: _RingWidths, i, k_lca, p: SegmentParams) -> bool:
+    """Does apex i's path, once past its narrow tip (a ring at least epsilon wide), stay on
+    the blade down to the LCA, never passing a petiole (a ring narrower than epsilon and, with
+    ``petiole_relative``, than that fraction of the widest ring seen: the petiole rule)?"""
+    w = np.asarray([widths(at.tree.nodes[v]) for v in at.paths[i][:k_lca + 1].tolist()])
+    wide = np.flatnonzero(w >= p.epsilon)
+    if not len(wide):
+        return False
+    w = w[wide[0]:]
+    petiole = w < p.epsilon
+    if p.petiole_relative > 0:
+        petiole &= w < p.petiole_relative * np.maximum.accumulate(w)
+    return not petiole.any()
+
+
+def _leaf_bases(pts, geo: _Geodesics, at: _ApexTree, group, Dd, p: SegmentParams) -> _Leaves:
+    """Per group, D_a from its primary tip (largest D_r) at every Gaussian and the petiole base
+    along the tip's path (:func:`_petiole_base`); groups without a blade are dropped when
+    ``require_blade``."""
+    solver, tree = geo.solver, at.tree
     children = np.zeros(len(tree.nodes), np.int64)
     par = np.asarray(tree.parent)
     np.add.at(children, par[par >= 0], 1)
     groups = np.unique(group)
-    tips_j = [int(max(np.flatnonzero(group == gid), key=lambda j: dr_s[order[j]])) for gid in groups]
-    D_all = solver.transfer(Dd[:, tips_j], [[int(apex_g[j])] for j in tips_j])  # (N, G)
-    D_all[~inlier] = np.inf  # a floater's interpolated distance means nothing
-    leaf_tip, leaf_base, base_dist, keep = [], [], [], []
+    tips_j = [int(max(np.flatnonzero(group == gid), key=lambda j: geo.d_root[at.apex_g[j]]))
+              for gid in groups]
+    D_all = solver.transfer(Dd[:, tips_j], [[int(at.apex_g[j])] for j in tips_j])  # (N, G)
+    D_all[~geo.inlier] = np.inf  # a floater's interpolated distance means nothing
+    leaves = _Leaves(groups=groups, dist=D_all, keep=[], tip=[], base=[], base_dist=[])
     for col, j in enumerate(tips_j):
-        cpath = anc[j]
+        cpath = at.paths[j]
         junction = next((k for k in range(1, len(cpath)) if children[cpath[k]] >= 2), len(cpath) - 1)
         junction_g = int(solver.domain[tree.nodes[cpath[junction]]])
-        path_g = solver.domain[np.asarray([tree.nodes[v] for v in apex_paths[j]])]
+        path_g = solver.domain[np.asarray([tree.nodes[v] for v in at.paths[j].tolist()])]
         base_g, b, has_blade = _petiole_base(pts, D_all[:, col], path_g, junction_g, p)
         if p.require_blade and not has_blade:
             log.info("apex %d: no blade wider than epsilon=%.3g along its path; not a leaf",
-                     int(apex_g[j]), p.epsilon)
+                     int(at.apex_g[j]), p.epsilon)
             continue
-        keep.append(col), leaf_tip.append(int(apex_g[j])), leaf_base.append(base_g), base_dist.append(b)
+        leaves.keep.append(col), leaves.tip.append(int(at.apex_g[j]))
+        leaves.base.append(base_g), leaves.base_dist.append(b)
+    return leaves
+
+
+def _label_leaves(d_root, leaves: _Leaves):
+    """(labels (N,) int32, group_label (G,) int32, leaf_tip, leaf_base): each Gaussian goes to the
+    leaf where it lies deepest (smallest D_a / base distance) if that is below 1; leaves are
+    numbered 1..L bottom to top (D_r of the base)."""
+    n = len(d_root)
     labels = np.zeros(n, np.int32)
-    group_label = np.zeros(len(groups), np.int32)
-    if keep:
-        ratio = D_all[:, keep] / np.maximum(np.asarray(base_dist), 1e-12)[None]
+    group_label = np.zeros(len(leaves.groups), np.int32)
+    leaf_tip, leaf_base = leaves.tip, leaves.base
+    if leaves.keep:
+        ratio = leaves.dist[:, leaves.keep] / np.maximum(np.asarray(leaves.base_dist), 1e-12)[None]
         best = np.argmin(ratio, axis=1)
         inside = ratio[np.arange(n), best] < 1.0
         # order leaves bottom to top (D_r of the base), deterministic labels 1..L
         rank = np.argsort(np.argsort(d_root[np.asarray(leaf_base)], kind="stable"), kind="stable")
         labels[inside] = (rank[best[inside]] + 1).astype(np.int32)
-        for k, col in enumerate(keep):
+        for k, col in enumerate(leaves.keep):
             group_label[col] = rank[k] + 1
         perm = np.argsort(rank)
         leaf_tip = np.asarray(leaf_tip, np.int64)[perm]
         leaf_base = np.asarray(leaf_base, np.int64)[perm]
-    labels[~reach | ~inlier] = 0
-    if (~inlier).any() and inlier.sum() > 1:
-        _attach_outliers(pts, labels, d_root, inlier, reach, p)
-    apex_labels = group_label[np.searchsorted(groups, group)].astype(np.int32)
-    tm["petiole_labels"] = time.perf_counter() - t1
-    tm["total"] = time.perf_counter() - t0
-    log.info("segmentation: %d apexes, %d leaves (%.2f s)", A, int(labels.max(initial=0)), tm["total"])
-    return _result(n, root, solver.domain, tree, apex_g, apex_labels, leaf_tip, leaf_base, labels,
-                   d_root, seg_params)
+    return labels, group_label, leaf_tip, leaf_base
 
 
 def _segment_blades(pts, root, inlier, normals, p: SegmentParams, tm: dict, t0: float) -> Segmentation:
@@ -515,15 +644,15 @@ def _surface_filter(solver, samples, cand, nbrs, dists):
     from scipy.sparse.csgraph import dijkstra
 
     graph = solver.adjacency(lengths=True)
-    near = solver._near
+    near = solver.nearest_domain
     radius = np.where(np.isfinite(dists), dists, 0).max(1)
     out = nbrs.copy()
     step = 64
     for lo in range(0, len(cand), step):
         c = cand[lo:lo + step]
-        geo = dijkstra(graph, indices=near[samples[c]], limit=float(radius[lo:lo + step].max()) * 1.5)
+        geo = dijkstra(graph, indices=near(samples[c]), limit=float(radius[lo:lo + step].max()) * 1.5)
         nb = nbrs[lo:lo + step]
-        g = np.take_along_axis(geo, near[samples[np.maximum(nb, 0)]], axis=1)
+        g = np.take_along_axis(geo, near(samples[np.maximum(nb, 0)]), axis=1)
         # along the surface a neighbour is never closer than in space; allow the graph's detour
         # (paths on a point-cloud graph are ~1.2-1.4x the true geodesic)
         far = ~(g <= 1.5 * radius[lo:lo + step, None])
@@ -565,65 +694,75 @@ def _build_tree(solver: GeodesicSolver, dr_dom, apex_g, root, p: SegmentParams):
     Returns the tree (nodes = domain positions) and per apex its path apex -> root (node indices).
     """
     adj = solver.adjacency()
-    near = solver._near
-    root_d = int(near[root])
-    x = solver._x
-    m = len(x)
+    ring = _cross_section_rings(solver, adj, dr_dom, p)
+    root_d = int(solver.nearest_domain(root))
+    tree = _Tree(nodes=[root_d], parent=[-1], pos={root_d: 0}, ring=ring)
+    ring_nodes = {int(ring[root_d]): [0]}  # ring id -> tree nodes on it
+    paths = []
+    for a in apex_g.tolist():
+        a_d = int(solver.nearest_domain(a))
+        if a_d not in tree.pos:
+            chain, attach_node = _descend(solver, adj, dr_dom, tree, ring_nodes, a_d)
+            par_node = attach_node
+            for v in reversed(chain):
+                tree.pos[v] = len(tree.nodes)
+                tree.nodes.append(v)
+                tree.parent.append(par_node)
+                par_node = tree.pos[v]
+                ring_nodes.setdefault(int(ring[v]), []).append(par_node)
+        paths.append(_path_to_root(tree, tree.pos[a_d]))
+    return tree, paths
+
+
+def _cross_section_rings(solver: GeodesicSolver, adj, dr_dom, p: SegmentParams) -> np.ndarray:
+    """(M,) int ring id of each domain point: the connected pieces (over the surface graph
+    ``adj``) of the D_r iso-bands of width max(delta, 3 h); unreached points share band -1."""
+    m = len(dr_dom)
     w = max(p.delta, 3 * solver.h)
     band = np.where(np.isfinite(dr_dom), np.floor(np.nan_to_num(dr_dom, posinf=-w) / w), -1).astype(np.int64)
     coo = adj.tocoo()
     same = band[coo.row] == band[coo.col]
     sub = coo_matrix((np.ones(int(same.sum())), (coo.row[same], coo.col[same])), shape=(m, m))
-    _, ring = connected_components(sub, directed=False)
-    ring_nodes: dict = {}
+    return connected_components(sub, directed=False)[1]
 
-    tree = _Tree(nodes=[root_d], parent=[-1], pos={root_d: 0})
-    ring_nodes.setdefault(int(ring[root_d]), []).append(0)
 
-    def touched(c):
-        cand = ring_nodes.get(int(ring[c]))
-        if not cand:
-            return -1
-        pos = x[[tree.nodes[t] for t in cand]]
-        return int(cand[int(np.argmin(((pos - x[c]) ** 2).sum(1)))])
+def _descend(solver: GeodesicSolver, adj, dr_dom, tree: _Tree, ring_nodes: dict, start: int):
+    """Steepest descent of D_r over the surface graph from domain position ``start`` until the
+    path meets the tree (deferred merge). Returns (chain: the new domain positions, start first;
+    the tree node the chain's last point attaches to)."""
+    x = solver.domain_points
+    m = len(x)
+    cur, chain, pending, attach_node = start, [start], False, 0
+    for _ in range(m + 1):
+        hit = _touched(x, tree, ring_nodes, cur)
+        if hit >= 0 and pending:
+            attach_node = hit
+            break
+        pending = hit >= 0
+        nb = adj.indices[adj.indptr[cur]:adj.indptr[cur + 1]]
+        lower = nb[dr_dom[nb] < dr_dom[cur]]
+        if len(lower) == 0:  # a local minimum of the graph (noise): look a little wider
+            wnb = solver.domain_neighbors(x[cur], int(min(32, m)))
+            lower = wnb[dr_dom[wnb] < dr_dom[cur]]
+        if len(lower) == 0:
+            attach_node = hit if hit >= 0 else 0
+            break
+        nxt = int(lower[np.argmin(dr_dom[lower])])
+        if nxt in tree.pos:
+            attach_node = tree.pos[nxt]
+            break
+        chain.append(nxt)
+        cur = nxt
+    return chain, attach_node
 
-    paths = []
-    for a in apex_g.tolist():
-        a_d = int(near[a])
-        if a_d in tree.pos:
-            paths.append(_path_to_root(tree, tree.pos[a_d]))
-            continue
-        cur, chain, pending, attach_node = a_d, [a_d], False, 0
-        for _ in range(m + 1):
-            hit = touched(cur)
-            if hit >= 0 and pending:
-                attach_node = hit
-                break
-            pending = hit >= 0
-            nb = adj.indices[adj.indptr[cur]:adj.indptr[cur + 1]]
-            lower = nb[dr_dom[nb] < dr_dom[cur]]
-            if len(lower) == 0:  # a local minimum of the graph (noise): look a little wider
-                _, wnb = solver._tree.query(x[cur], k=int(min(32, m)))
-                lower = wnb[dr_dom[wnb] < dr_dom[cur]]
-            if len(lower) == 0:
-                attach_node = hit if hit >= 0 else 0
-                break
-            nxt = int(lower[np.argmin(dr_dom[lower])])
-            if nxt in tree.pos:
-                attach_node = tree.pos[nxt]
-                break
-            chain.append(nxt)
-            cur = nxt
-        par_node = attach_node
-        for v in reversed(chain):
-            tree.pos[v] = len(tree.nodes)
-            tree.nodes.append(v)
-            tree.parent.append(par_node)
-            par_node = tree.pos[v]
-            ring_nodes.setdefault(int(ring[v]), []).append(par_node)
-        paths.append(_path_to_root(tree, tree.pos[a_d]))
-    tree.ring = ring
-    return tree, paths
+
+def _touched(x, tree: _Tree, ring_nodes: dict, c: int) -> int:
+    """The tree node on domain point c's ring nearest to it, or -1 when the ring has none."""
+    cand = ring_nodes.get(int(tree.ring[c]))
+    if not cand:
+        return -1
+    pos = x[[tree.nodes[t] for t in cand]]
+    return int(cand[int(np.argmin(((pos - x[c]) ** 2).sum(1)))])
 
 
 def _path_to_root(tree: _Tree, node: int) -> list:
