@@ -31,7 +31,9 @@ sys.path.insert(0, str(ROOT))
 from leaffit_usd.fit.params import FitParams  # noqa: E402
 from leaffit_usd.fit.register import fit_leaves  # noqa: E402
 from leaffit_usd.image_io import write_image  # noqa: E402
-from leaffit_usd.mesh.template import MeshParams, build_template_mesh, point_sheet_distance  # noqa: E402
+from leaffit_usd.mesh.params import MeshParams  # noqa: E402
+from leaffit_usd.mesh.sheet_distance import point_sheet_distance  # noqa: E402
+from leaffit_usd.mesh.template import build_template_mesh  # noqa: E402
 from leaffit_usd.segment.result import Segmentation  # noqa: E402
 from leaffit_usd.splats.frame import Frame  # noqa: E402
 from leaffit_usd.splats.transform import transform_cloud  # noqa: E402

@@ -29,7 +29,7 @@ def test_two_conversions_identical_bytes_across_thread_counts(tmp_path):
     from samples.generate import PlantSpec, make_plant, save_plant
 
     from leaffit_usd.fit.params import FitParams
-    from leaffit_usd.mesh.template import MeshParams
+    from leaffit_usd.mesh.params import MeshParams
     from leaffit_usd.pipeline import ConvertOptions, convert
     from leaffit_usd.segment.auto import SegmentParams
     from leaffit_usd.usd.writer import WriteOptions

@@ -39,7 +39,7 @@ def add_options(p) -> None:
     from leaffit_usd.commands._args import (add_frame_arguments, add_isolate_arguments,
                                             add_segment_arguments, default, pos_float, pos_int)
     from leaffit_usd.fit.params import FitParams
-    from leaffit_usd.mesh.template import MeshParams
+    from leaffit_usd.mesh.params import MeshParams
     from leaffit_usd.segment.edits import add_edits_argument
     from leaffit_usd.usd.writer import TEXTURE_FORMATS, WriteOptions
 
@@ -97,7 +97,7 @@ def options_from_args(args):
 
     from leaffit_usd.commands._args import frame_options, segment_params
     from leaffit_usd.fit.params import FitParams
-    from leaffit_usd.mesh.template import MeshParams
+    from leaffit_usd.mesh.params import MeshParams
     from leaffit_usd.pipeline import ConvertOptions
     from leaffit_usd.usd.writer import WriteOptions
 

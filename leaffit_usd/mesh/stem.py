@@ -40,7 +40,7 @@ interpolated from the root scale to 1 at the tips, so it holds exactly at every 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -330,30 +330,22 @@ def _neighbour_graph(P: np.ndarray, k: int):
     return A.maximum(A.T).tocoo(), gap
 
 
-def gaussian_skeleton(points: np.ndarray, labels: np.ndarray, root_index: int,
-                      params: StemParams) -> Skeleton | None:
-    """Level-set skeleton of the stem Gaussians (label 0), or None when there are too few.
-
-    points : (N, 3) working frame; labels : (N,) segmentation labels; root_index : the root
-    Gaussian. See the module docstring (step 1).
-    """
+def _bridged_graph(P: np.ndarray, root_point: np.ndarray | None, params: StemParams):
+    """The stem Gaussians' neighbour graph (CSR, edge weight = length) with every sizeable piece
+    bridged to the root's piece (closest pair first; specks stay apart), and the index of the
+    Gaussian nearest the root (the lowest one without a root point)."""
     from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components, dijkstra
+    from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
 
-    idx = np.flatnonzero(np.asarray(labels) == 0)
-    if len(idx) < max(int(params.min_gaussians), 4):
-        return None
-    P = points[idx]
     M = len(P)
     A, gap = _neighbour_graph(P, int(params.neighbours))
     ncomp, comp = connected_components(A, directed=False)
-    r0 = int(np.argmin(np.linalg.norm(P - points[int(root_index)], axis=1))) \
-        if 0 <= int(root_index) < len(points) else int(np.argmin(P[:, 2]))
+    r0 = int(np.argmin(np.linalg.norm(P - root_point, axis=1))) if root_point is not None \
+        else int(np.argmin(P[:, 2]))
     sizes = np.bincount(comp, minlength=ncomp)
     min_piece = max(20, int(0.002 * M))
     rows, cols, vals = [A.row], [A.col], [A.data]
-    # bridge every sizeable piece to the root's piece (closest pair first); specks are dropped
     joined = comp == comp[r0]
     others = [c for c in np.argsort(-sizes) if c != comp[r0] and sizes[c] >= min_piece]
     while others:
@@ -374,41 +366,50 @@ def gaussian_skeleton(points: np.ndarray, labels: np.ndarray, root_index: int,
         others.remove(c)
     G = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                    shape=(M, M)).tocsr()
-    # sources: the root's piece of the lowest slab (the base's whole ring, not one point on it:
-    # geodesic level sets from a point on a thick stem's surface would be arcs, not rings)
-    w = float(params.level_width)
+    return G, r0
+
+
+def _base_sources(P: np.ndarray, G, r0: int, w: float) -> np.ndarray:
+    """Indices of the root's piece of the lowest slab (``w`` thick): the base's whole ring, not
+    one point on it (geodesic level sets from a point on a thick stem's surface would be arcs,
+    not rings)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    M = len(P)
     Gc = G.tocoo()
     slab = P[:, 2] <= P[r0, 2] + w
     in_slab = slab[Gc.row] & slab[Gc.col]
     _, slab_lab = connected_components(coo_matrix((np.ones(int(in_slab.sum())),
                                                    (Gc.row[in_slab], Gc.col[in_slab])), shape=(M, M)),
                                        directed=False)
-    sources = np.flatnonzero(slab & (slab_lab == slab_lab[r0]))
-    ring = P[sources, :2]
-    base_r = float(np.median(np.linalg.norm(ring - ring.mean(0), axis=1))) if len(sources) > 3 else 0.0
-    # level sets no thinner than the base is wide: thin slabs of a thick stem break into arcs
-    w = max(w, float(params.base_level_ratio) * base_r)
-    g = dijkstra(G, directed=False, indices=sources, min_only=True)
-    ok = np.isfinite(g)
-    if ok.sum() < max(int(params.min_gaussians), 4):
-        return None
-    level = np.where(ok, np.floor(np.where(ok, g, 0) / w), -1).astype(np.int64)
+    return np.flatnonzero(slab & (slab_lab == slab_lab[r0]))
+
+
+def _level_pieces(P: np.ndarray, G, level: np.ndarray, ok: np.ndarray):
+    """Connected pieces of the level sets: (piece label per reached Gaussian (R,), the reached
+    Gaussians' indices (R,), node count n)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    M = len(P)
+    Gc = G.tocoo()
     e_i, e_j = Gc.row, Gc.col
     same = (level[e_i] == level[e_j]) & ok[e_i] & ok[e_j]
     _, lab = connected_components(coo_matrix((np.ones(int(same.sum())), (e_i[same], e_j[same])),
                                              shape=(M, M)), directed=False)
     lab = np.where(ok, lab, -1)
     uniq, lab = np.unique(lab[ok], return_inverse=True)
-    pts_ok = np.flatnonzero(ok)
-    n = len(uniq)
-    count = np.bincount(lab, minlength=n)
-    pos = np.stack([np.bincount(lab, weights=P[pts_ok, k], minlength=n) for k in range(3)], 1) / count[:, None]
-    node_level = np.zeros(n, np.int64)
-    node_level[lab] = level[pts_ok]
-    node_of = np.full(M, -1, np.int64)
-    node_of[pts_ok] = lab
-    # parent: the node of a lower level this node touches most (prefer the previous level)
-    a, b = node_of[e_i], node_of[e_j]
+    return lab, np.flatnonzero(ok), len(uniq)
+
+
+def _piece_parents(G, node_of: np.ndarray, node_level: np.ndarray, pos: np.ndarray,
+                   root: int) -> np.ndarray:
+    """(n,) parent of each level-set piece: the piece of a lower level it touches most
+    (preferring the previous level); a piece touching none hangs from the nearest lower one."""
+    Gc = G.tocoo()
+    n = len(pos)
+    a, b = node_of[Gc.row], node_of[Gc.col]
     down = (a >= 0) & (b >= 0) & (node_level[b] < node_level[a])
     parent = np.full(n, -1, np.int64)
     if down.any():
@@ -420,11 +421,49 @@ def gaussian_skeleton(points: np.ndarray, labels: np.ndarray, root_index: int,
         order = np.lexsort((-cnt, -prev, ch))
         first = np.r_[True, ch[order][1:] != ch[order][:-1]]
         parent[ch[order][first]] = pa[order][first]
-    root = int(node_of[r0])
     parent[root] = -1
     for u in np.flatnonzero((parent < 0) & (np.arange(n) != root)):  # touches no lower piece
         lower = np.flatnonzero(node_level < node_level[u])
         parent[u] = lower[np.argmin(np.linalg.norm(pos[lower] - pos[u], axis=1))] if len(lower) else root
+    return parent
+
+
+def gaussian_skeleton(points: np.ndarray, labels: np.ndarray, root_index: int,
+                      params: StemParams) -> Skeleton | None:
+    """Level-set skeleton of the stem Gaussians (label 0), or None when there are too few.
+
+    points : (N, 3) working frame; labels : (N,) segmentation labels; root_index : the root
+    Gaussian. See the module docstring (step 1).
+    """
+    from scipy.sparse.csgraph import dijkstra
+
+    idx = np.flatnonzero(np.asarray(labels) == 0)
+    if len(idx) < max(int(params.min_gaussians), 4):
+        return None
+    P = points[idx]
+    M = len(P)
+    root_point = points[int(root_index)] if 0 <= int(root_index) < len(points) else None
+    G, r0 = _bridged_graph(P, root_point, params)
+    w = float(params.level_width)
+    sources = _base_sources(P, G, r0, w)
+    ring = P[sources, :2]
+    base_r = float(np.median(np.linalg.norm(ring - ring.mean(0), axis=1))) if len(sources) > 3 else 0.0
+    # level sets no thinner than the base is wide: thin slabs of a thick stem break into arcs
+    w = max(w, float(params.base_level_ratio) * base_r)
+    g = dijkstra(G, directed=False, indices=sources, min_only=True)
+    ok = np.isfinite(g)
+    if ok.sum() < max(int(params.min_gaussians), 4):
+        return None
+    level = np.where(ok, np.floor(np.where(ok, g, 0) / w), -1).astype(np.int64)
+    lab, pts_ok, n = _level_pieces(P, G, level, ok)
+    count = np.bincount(lab, minlength=n)
+    pos = np.stack([np.bincount(lab, weights=P[pts_ok, k], minlength=n) for k in range(3)], 1) / count[:, None]
+    node_level = np.zeros(n, np.int64)
+    node_level[lab] = level[pts_ok]
+    node_of = np.full(M, -1, np.int64)
+    node_of[pts_ok] = lab
+    root = int(node_of[r0])
+    parent = _piece_parents(G, node_of, node_level, pos, root)
     dist = np.linalg.norm(P[pts_ok] - pos[lab], axis=1)
     order = np.lexsort((dist, lab))
     starts = np.searchsorted(lab[order], np.arange(n))
@@ -912,21 +951,8 @@ def _empty_stem() -> Stem:
                 faces=np.zeros((0, 3), np.int32))
 
 
-def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
-               colors=None) -> Stem:
-    """The stem as smooth swept tubes (module docstring).
-
-    seg : Segmentation (labels, root_index; tree_nodes, tree_parent, tree_leaf, leaf_base for the
-        tree skeleton and the radius prior)
-    points_working : (N, 3) float, the Gaussians the segmentation ran on, working frame
-    fits : LeafFits or None (unused by the geometry; accepted so callers pass the whole state)
-    colors : (N, 3) float sRGB in [0, 1] of those Gaussians, or None (no vertex colours)
-    Returns a ``Stem`` (working frame) with LOD0 in points/faces/colors and the coarser levels
-    in ``lods``. No stem Gaussians and no stem edges give an empty stem and a warning.
-    """
-    params = params or StemParams()
-    params.validate()
-    pts_all = np.asarray(points_working, np.float64)
+def _check_inputs(seg, pts_all: np.ndarray) -> None:
+    """Named errors for a points array that is not (N, 3) or a tree that does not index it."""
     if pts_all.ndim != 2 or pts_all.shape[1] != 3:
         raise ParameterError("points_working", "an (N, 3) array", pts_all.shape)
     nodes = np.asarray(seg.tree_nodes, np.int64)
@@ -936,7 +962,11 @@ def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
     if len(np.asarray(seg.tree_parent)) != len(nodes) or len(np.asarray(seg.tree_leaf)) != len(nodes):
         raise ParameterError("seg.tree_parent/tree_leaf", f"{len(nodes)} entries (one per tree node)",
                              f"{len(np.asarray(seg.tree_parent))}/{len(np.asarray(seg.tree_leaf))}")
-    labels = np.asarray(seg.labels)
+
+
+def _choose_skeleton(seg, pts_all: np.ndarray, labels: np.ndarray,
+                     params: StemParams) -> tuple[Skeleton | None, str]:
+    """(skeleton, kind): the Gaussian skeleton when asked for and possible, else the tree's."""
     sk = None
     kind = "tree"
     if params.skeleton in ("auto", "gaussians") and len(labels) == len(pts_all):
@@ -950,11 +980,13 @@ def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
         sk, kind = tree_skeleton(seg, pts_all), "tree"
         if sk is not None and len(sk.pos) == 2:
             log.warning("stem: the segmentation tree has a single stem edge; the stem is one tapered tube")
-    if sk is None or len(sk.pos) < 2:
-        log.warning("stem: the segmentation tree has no stem edges and no stem Gaussians; writing no stem")
-        return _empty_stem()
-    obs, wt = _observed_areas(sk, pts_all, params) if kind == "gaussians" else \
-        (np.zeros(len(sk.pos)), np.zeros(len(sk.pos)))
+    return sk, kind
+
+
+def _prior_radii(sk: Skeleton, obs: np.ndarray, wt: np.ndarray, seg, pts_all: np.ndarray, fits,
+                 params: StemParams) -> tuple[float, float]:
+    """(root_radius, petiole_radius) of the Leonardo prior: the parameters, else the measured
+    radii at the root's first nodes and at the tips, else estimates from the capture."""
     root_r, pet_r = params.root_radius, params.petiole_radius
     if root_r is None or pet_r is None:
         kids = sk.children()
@@ -970,7 +1002,33 @@ def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
                                                       estimate_ball=params.estimate_ball),
                                            seg, pts_all, fits)
             root_r, pet_r = r_root, r_pet
-    pet_r = min(pet_r, root_r)
+    return root_r, min(pet_r, root_r)
+
+
+def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
+               colors=None) -> Stem:
+    """The stem as smooth swept tubes (module docstring).
+
+    seg : Segmentation (labels, root_index; tree_nodes, tree_parent, tree_leaf, leaf_base for the
+        tree skeleton and the radius prior)
+    points_working : (N, 3) float, the Gaussians the segmentation ran on, working frame
+    fits : LeafFits or None (unused by the geometry; accepted so callers pass the whole state)
+    colors : (N, 3) float sRGB in [0, 1] of those Gaussians, or None (no vertex colours)
+    Returns a ``Stem`` (working frame) with LOD0 in points/faces/colors and the coarser levels
+    in ``lods``. No stem Gaussians and no stem edges give an empty stem and a warning.
+    """
+    params = params or StemParams()
+    params.validate()
+    pts_all = np.asarray(points_working, np.float64)
+    _check_inputs(seg, pts_all)
+    labels = np.asarray(seg.labels)
+    sk, kind = _choose_skeleton(seg, pts_all, labels, params)
+    if sk is None or len(sk.pos) < 2:
+        log.warning("stem: the segmentation tree has no stem edges and no stem Gaussians; writing no stem")
+        return _empty_stem()
+    obs, wt = _observed_areas(sk, pts_all, params) if kind == "gaussians" else \
+        (np.zeros(len(sk.pos)), np.zeros(len(sk.pos)))
+    root_r, pet_r = _prior_radii(sk, obs, wt, seg, pts_all, fits, params)
     prior = _leonardo_prior(sk, float(root_r), float(pet_r))
     # nothing measured (tree skeleton): the prior is the whole answer
     areas = solve_areas(sk, obs, wt, prior, params) if (wt > 0).any() else prior

@@ -8,7 +8,10 @@ from leaffit_usd.errors import ParameterError
 from leaffit_usd.mesh import surface as S
 from samples.synthetic.mesh import BOTTOM_RGB, TOP_RGB, synthetic_leaf
 from leaffit_usd.image_io import read_image_u8 as read_image
-from leaffit_usd.mesh.template import MeshParams, build_template_mesh, rasterize_polygon, write_textures
+from leaffit_usd.mesh.params import MeshParams
+from leaffit_usd.mesh.template import build_template_mesh
+from leaffit_usd.mesh.texture_files import write_textures
+from leaffit_usd.mesh.uv_chart import rasterize_polygon
 
 from .conftest import SHEET_MAX_DIST_REL, SHEET_MEAN_DIST_REL
 

@@ -1,0 +1,69 @@
+"""Template mesh parameters (:class:`MeshParams`), the one place their defaults are written."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from leaffit_usd.errors import ParameterError
+
+METHODS = ("auto", "bpa", "planar")
+
+
+@dataclass
+class MeshParams:
+    """Template mesh parameters.
+
+    vertex_budget : maximum number of sheet vertices (FPS samples), paper: 2,048
+    texture_size : width = height of each side's baked texture in pixels (``convert --bake-size``;
+        the stage's files may be downsampled when written: ``WriteOptions.texture_max_size``)
+    method : "auto" (BPA, planar fallback), "bpa" (BPA only; still falls back when it produces
+        nothing usable) or "planar"
+    bpa_radii : ball radii, multiples of the samples' median nearest-neighbour spacing
+    alpha : planar method's alpha-shape circumradius, multiple of the same spacing
+    texture_margin : empty border around the leaf in the texture, fraction of its extent
+    uv_layout : "fit" (the chart's bounding box fills the square texture: texels follow the
+        leaf's aspect ratio) or "square" (square texels, the leaf's larger extent spans it)
+    supersample : the bake renders at this many times the texture size per axis and
+        box-filters down (premultiplied), then divides by the accumulated alpha
+    clean_outline : re-triangulate the sheet inside a smooth outline curve (constrained
+        Delaunay, :func:`surface.remesh_sheet`); the fine serration stays in the alpha cut-out
+    lod_vertices : vertex budgets of the coarser levels of detail (per side)
+    alpha_threshold : splat coverage at which the cut-out edge lies
+    min_coverage : smallest fraction of the sheet's silhouette a side's splats must cover
+    """
+
+    vertex_budget: int = 2048
+    texture_size: int = 1024
+    method: str = "auto"
+    bpa_radii: tuple = (2.0, 3.0, 4.0)
+    alpha: float = 2.5
+    texture_margin: float = 0.01
+    uv_layout: str = "fit"
+    supersample: int = 2
+    clean_outline: bool = True
+    lod_vertices: tuple = (512, 128)
+    alpha_threshold: float = 0.5
+    min_coverage: float = 0.6
+
+    def validate(self) -> None:
+        if not isinstance(self.vertex_budget, (int, np.integer)) or self.vertex_budget < 3:
+            raise ParameterError("vertex_budget", "an integer >= 3", self.vertex_budget)
+        if not isinstance(self.texture_size, (int, np.integer)) or not 8 <= self.texture_size <= 16384:
+            raise ParameterError("texture_size", "an integer in [8, 16384]", self.texture_size)
+        if self.method not in METHODS:
+            raise ParameterError("method", ", ".join(METHODS), self.method)
+        radii = tuple(self.bpa_radii)
+        if not radii or not all(np.isfinite(r) and r > 0 for r in radii):
+            raise ParameterError("bpa_radii", "positive multiples of the sample spacing", self.bpa_radii)
+        if self.uv_layout not in ("fit", "square"):
+            raise ParameterError("uv_layout", "fit or square", self.uv_layout)
+        if not isinstance(self.supersample, (int, np.integer)) or not 1 <= self.supersample <= 4:
+            raise ParameterError("supersample", "an integer in 1..4", self.supersample)
+        if not all(isinstance(n, (int, np.integer)) and n >= 8 for n in tuple(self.lod_vertices)):
+            raise ParameterError("lod_vertices", "integers >= 8", self.lod_vertices)
+        for name, lo, hi in (("alpha", 0.5, 100.0), ("texture_margin", 0.0, 0.45),
+                             ("alpha_threshold", 0.01, 0.99), ("min_coverage", 0.0, 1.0)):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and lo <= v <= hi):
+                raise ParameterError(name, f"a number in [{lo}, {hi}]", v)
