@@ -99,43 +99,20 @@ def write_baked_usd(path, baked: BakedLeaves, asset, source=None, name: str | No
     source : path of the stage it was read from (texture paths are re-expressed relative to
         ``path``); None keeps the texture paths as authored
     """
-    from pxr import Kind, Sdf, Tf, Usd, UsdGeom, UsdShade, Vt
+    from pxr import Tf, Usd, UsdGeom
 
-    from leaffit_usd.usd.writer import STEM_COLOR, make_material, set_leaf_tint
+    from leaffit_usd.usd.writer import STEM_COLOR, make_material
 
     path = Path(path)
     L = baked.n_leaves
-    V = len(asset.template_points)
-    faces_t = np.asarray(asset.template_faces, np.int32)
-    face_side = (asset.template_side[faces_t].astype(np.int32).sum(1) >= 2) if len(faces_t) else \
-        np.zeros(0, bool)
-    uvs = Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(asset.template_uvs, np.float32).reshape(-1, 2))
-    normals = vertex_normals(baked.vertices, baked.faces).astype(np.float32)
     name = name or Tf.MakeValidIdentifier(path.stem) or "Plant"
-    md = asset.metadata or {}
 
     def tex(t):
         return _texture_path(t, Path(source), path.parent) if source is not None else t
 
     with atomic_path(path) as tmp:
         stage = Usd.Stage.CreateInMemory()
-        if baked.frame == "asset":
-            up = str(md.get("up_axis", "Y")).upper()
-            UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z if up == "Z" else UsdGeom.Tokens.y)
-            UsdGeom.SetStageMetersPerUnit(stage, float(md.get("meters_per_unit", 1.0)))
-        else:   # the capture's own frame: no known up axis or unit
-            UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
-            UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-        root = f"/{name}"
-        plant = UsdGeom.Xform.Define(stage, root).GetPrim()
-        stage.SetDefaultPrim(plant)
-        Usd.ModelAPI(plant).SetKind(Kind.Tokens.component)
-        plant.SetCustomDataByKey("leaffit", {
-            "baked": True, "frame": baked.frame, "leafCount": int(L),
-            "sheetOffset": float(baked.metadata.get("sheet_offset", 0.0)),
-            "source": str(source) if source is not None else "",
-            "inputSha256": str(md.get("input_sha256", "")),
-        })
+        root = _baked_root(stage, name, baked, asset.metadata or {}, source)
         looks = f"{root}/Looks"
         UsdGeom.Scope.Define(stage, looks)
         green = (0.1, 0.35, 0.08)
@@ -147,51 +124,99 @@ def write_baked_usd(path, baked: BakedLeaves, asset, source=None, name: str | No
                               tint=tints is not None)]
         stem_mat = make_material(stage, f"{looks}/Stem", None, STEM_COLOR)
         UsdGeom.Scope.Define(stage, f"{root}/Leaves")
-        counts = Vt.IntArray.FromNumpy(np.full(len(faces_t), 3, np.int32))
-        subsets = [Vt.IntArray.FromNumpy(np.flatnonzero(face_side == s).astype(np.int32))
-                   for s in (0, 1)]
-        F = len(faces_t)
-        for j in range(L):
-            pts = np.asarray(baked.vertices[j * V:(j + 1) * V], np.float32)
-            mesh = UsdGeom.Mesh.Define(stage, f"{root}/Leaves/leaf_{j:04d}")
-            mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-            mesh.CreateDoubleSidedAttr(False)
-            mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
-            mesh.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([pts.min(0), pts.max(0)])))
-            mesh.CreateFaceVertexCountsAttr(counts)
-            mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(
-                np.ascontiguousarray(baked.faces[j * F:(j + 1) * F] - j * V, np.int32).ravel()))
-            mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(normals[j * V:(j + 1) * V]))
-            mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
-            pv = UsdGeom.PrimvarsAPI(mesh)
-            pv.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
-                             UsdGeom.Tokens.vertex).Set(uvs)
-            pv.CreatePrimvar("leaffit:leafLabel", Sdf.ValueTypeNames.Int,
-                             UsdGeom.Tokens.constant).Set(int(baked.leaf_labels[j]))
-            if tints is not None:
-                set_leaf_tint(mesh, tints[j])
-            for s, (sub_name, mat) in enumerate(zip(("front", "back"), mats)):
-                sub = UsdGeom.Subset.CreateGeomSubset(mesh, sub_name, UsdGeom.Tokens.face,
-                                                      subsets[s], "materialBind",
-                                                      UsdGeom.Tokens.nonOverlapping)
-                UsdShade.MaterialBindingAPI.Apply(sub.GetPrim()).Bind(mat)
-            UsdGeom.Subset.SetFamilyType(mesh, "materialBind", UsdGeom.Tokens.partition)
+        _write_leaf_meshes(stage, f"{root}/Leaves", baked, asset, mats, tints)
         if len(baked.stem_vertices) and len(baked.stem_faces):
-            sv = np.asarray(baked.stem_vertices, np.float32)
-            stem = UsdGeom.Mesh.Define(stage, f"{root}/Stem")
-            stem.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-            stem.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(sv))
-            stem.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([sv.min(0), sv.max(0)])))
-            stem.CreateFaceVertexCountsAttr(
-                Vt.IntArray.FromNumpy(np.full(len(baked.stem_faces), 3, np.int32)))
-            stem.CreateFaceVertexIndicesAttr(
-                Vt.IntArray.FromNumpy(np.ascontiguousarray(baked.stem_faces, np.int32).ravel()))
-            UsdShade.MaterialBindingAPI.Apply(stem.GetPrim()).Bind(stem_mat)
+            _write_stem_mesh(stage, f"{root}/Stem", baked, stem_mat)
         stage.GetRootLayer().documentation = (
             f"LeafFit plant baked to explicit meshes ({L} leaves, {baked.frame} frame) by "
             "leaffit-usd bake")
         stage.GetRootLayer().Export(str(tmp))
         _default_mode(tmp)
+
+
+def _baked_root(stage, name: str, baked: BakedLeaves, md: dict, source) -> str:
+    """Stage metadata (up axis, metres per unit: the asset's, or +Y / 1 for the capture's own
+    frame) and the root Xform with its customData; returns the root's path."""
+    from pxr import Kind, Usd, UsdGeom
+
+    if baked.frame == "asset":
+        up = str(md.get("up_axis", "Y")).upper()
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z if up == "Z" else UsdGeom.Tokens.y)
+        UsdGeom.SetStageMetersPerUnit(stage, float(md.get("meters_per_unit", 1.0)))
+    else:   # the capture's own frame: no known up axis or unit
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    root = f"/{name}"
+    plant = UsdGeom.Xform.Define(stage, root).GetPrim()
+    stage.SetDefaultPrim(plant)
+    Usd.ModelAPI(plant).SetKind(Kind.Tokens.component)
+    plant.SetCustomDataByKey("leaffit", {
+        "baked": True, "frame": baked.frame, "leafCount": int(baked.n_leaves),
+        "sheetOffset": float(baked.metadata.get("sheet_offset", 0.0)),
+        "source": str(source) if source is not None else "",
+        "inputSha256": str(md.get("input_sha256", "")),
+    })
+    return root
+
+
+def _write_leaf_meshes(stage, parent: str, baked: BakedLeaves, asset, mats, tints) -> None:
+    """``parent/leaf_0000`` ...: one Mesh per leaf (points, normals, st, label, tint), its faces
+    in front / back GeomSubsets bound to ``mats`` (front, back)."""
+    from pxr import Sdf, UsdGeom, UsdShade, Vt
+
+    from leaffit_usd.usd.writer import set_leaf_tint
+
+    V = len(asset.template_points)
+    faces_t = np.asarray(asset.template_faces, np.int32)
+    face_side = (asset.template_side[faces_t].astype(np.int32).sum(1) >= 2) if len(faces_t) else \
+        np.zeros(0, bool)
+    uvs = Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(asset.template_uvs, np.float32).reshape(-1, 2))
+    normals = vertex_normals(baked.vertices, baked.faces).astype(np.float32)
+    counts = Vt.IntArray.FromNumpy(np.full(len(faces_t), 3, np.int32))
+    subsets = [Vt.IntArray.FromNumpy(np.flatnonzero(face_side == s).astype(np.int32))
+               for s in (0, 1)]
+    F = len(faces_t)
+    for j in range(baked.n_leaves):
+        pts = np.asarray(baked.vertices[j * V:(j + 1) * V], np.float32)
+        mesh = UsdGeom.Mesh.Define(stage, f"{parent}/leaf_{j:04d}")
+        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        mesh.CreateDoubleSidedAttr(False)
+        mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
+        mesh.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([pts.min(0), pts.max(0)])))
+        mesh.CreateFaceVertexCountsAttr(counts)
+        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(
+            np.ascontiguousarray(baked.faces[j * F:(j + 1) * F] - j * V, np.int32).ravel()))
+        mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(normals[j * V:(j + 1) * V]))
+        mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+        pv = UsdGeom.PrimvarsAPI(mesh)
+        pv.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                         UsdGeom.Tokens.vertex).Set(uvs)
+        pv.CreatePrimvar("leaffit:leafLabel", Sdf.ValueTypeNames.Int,
+                         UsdGeom.Tokens.constant).Set(int(baked.leaf_labels[j]))
+        if tints is not None:
+            set_leaf_tint(mesh, tints[j])
+        for s, (sub_name, mat) in enumerate(zip(("front", "back"), mats)):
+            sub = UsdGeom.Subset.CreateGeomSubset(mesh, sub_name, UsdGeom.Tokens.face,
+                                                  subsets[s], "materialBind",
+                                                  UsdGeom.Tokens.nonOverlapping)
+            UsdShade.MaterialBindingAPI.Apply(sub.GetPrim()).Bind(mat)
+        UsdGeom.Subset.SetFamilyType(mesh, "materialBind", UsdGeom.Tokens.partition)
+
+
+def _write_stem_mesh(stage, prim_path: str, baked: BakedLeaves, material) -> None:
+    """The stem as one Mesh at ``prim_path``, bound to ``material``."""
+    from pxr import UsdGeom, UsdShade, Vt
+
+    sv = np.asarray(baked.stem_vertices, np.float32)
+    stem = UsdGeom.Mesh.Define(stage, prim_path)
+    stem.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    stem.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(sv))
+    stem.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([sv.min(0), sv.max(0)])))
+    stem.CreateFaceVertexCountsAttr(
+        Vt.IntArray.FromNumpy(np.full(len(baked.stem_faces), 3, np.int32)))
+    stem.CreateFaceVertexIndicesAttr(
+        Vt.IntArray.FromNumpy(np.ascontiguousarray(baked.stem_faces, np.int32).ravel()))
+    UsdShade.MaterialBindingAPI.Apply(stem.GetPrim()).Bind(material)
 
 
 def read_baked_usd(path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
