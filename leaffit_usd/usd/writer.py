@@ -311,7 +311,7 @@ def _face_sides(a: PlantAsset) -> np.ndarray:
 
 
 def _author_template_mesh(stage, path: str, a: PlantAsset, looks: str):
-    from pxr import Sdf, UsdGeom, Vt
+    from pxr import UsdGeom
 
     mesh = UsdGeom.Mesh.Define(stage, path)
     mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
@@ -422,9 +422,20 @@ def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, f
     layer ``out``: the /<name> interface prim (kind, assetInfo, customData, variant sets) whose
     payload ``geom_rel`` brings the geometry in, so a scene can load the plant lazily. Variant
     opinions (LOD, leafRepresentation) in the root layer are stronger than the payload's."""
-    from pxr import Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
+    # the geometry stage stays open while the root layer refers to its template Mesh
+    geo, tmpl = _write_geometry_layer(geom_out, out.name, a, leaves, name, front_tex, back_tex,
+                                      has_alpha)
+    _write_root_layer(out, a, name, geom_rel, baked_rel, baked_lods, tmpl)
+    del geo
 
-    geo = stage = Usd.Stage.CreateNew(str(geom_out))
+
+def _write_geometry_layer(geom_out: Path, main_name: str, a: PlantAsset, leaves: np.ndarray,
+                          name: str, front_tex: str, back_tex: str, has_alpha: bool):
+    """The payload layer ``geom_out``: /<name> with Looks, the Leaves instancer and the Stem.
+    Returns (the open stage, the template leaf Mesh)."""
+    from pxr import Usd, UsdGeom, UsdShade
+
+    stage = Usd.Stage.CreateNew(str(geom_out))
     _stage_units(stage, a)
     root = f"/{name}"
     stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, root).GetPrim())
@@ -437,9 +448,28 @@ def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, f
     make_material(stage, f"{looks}/LeafFront", front_tex or None, green, has_alpha, tinted)
     make_material(stage, f"{looks}/LeafBack", back_tex or None, green, has_alpha, tinted)
     stem_mat = make_stem_material(stage, f"{looks}/Stem", a)
+    tmpl = _author_leaf_instancer(stage, f"{root}/Leaves", a, leaves, looks, tints)
 
-    # the leaves: one template Mesh prototype + a PointInstancer with the MLS deformer
-    inst_path = f"{root}/Leaves"
+    if len(a.stem_points) and len(a.stem_faces):
+        stem = UsdGeom.Mesh.Define(stage, f"{root}/Stem")
+        stem.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        _set_stem_geometry(stem, a)
+        UsdShade.MaterialBindingAPI.Apply(stem.GetPrim()).Bind(stem_mat)
+        stem.GetPrim().SetCustomDataByKey("leaffit:role", "stem")
+
+    stage.GetRootLayer().documentation = (
+        f"LeafFit plant geometry: the payload of ./{main_name} (open that file)")
+    stage.GetRootLayer().Save()
+    return stage, tmpl
+
+
+def _author_leaf_instancer(stage, inst_path: str, a: PlantAsset, leaves: np.ndarray, looks: str,
+                           tints):
+    """The leaves: one template Mesh prototype + a PointInstancer with the MLS deformer
+    (LeafFitMLSDeformerAPI, targets, labels, tints). leaves : (L, V, 3) explicit leaves, for the
+    extent. Returns the template Mesh."""
+    from pxr import Sdf, UsdGeom, Vt
+
     inst = UsdGeom.PointInstancer.Define(stage, inst_path)
     UsdGeom.Scope.Define(stage, f"{inst_path}/Prototypes")
     tmpl = _author_template_mesh(stage, f"{inst_path}/Prototypes/TemplateLeaf", a, looks)
@@ -457,7 +487,7 @@ def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, f
     tg.Set(vec3f_array(a.targets))
     lab = pv.CreatePrimvar("leaffit:leafLabel", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex)
     lab.Set(Vt.IntArray.FromNumpy(np.asarray(a.leaf_labels, np.int32)))
-    if tinted:
+    if tints is not None:
         pv.CreatePrimvar(TINT_PRIMVAR, Sdf.ValueTypeNames.Color3fArray,
                          UsdGeom.Tokens.vertex).Set(vec3f_array(tints))
     inst.CreateExtentAttr(extent(leaves))
@@ -474,19 +504,17 @@ def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, f
     _attr(ip, S.ATTR_REG, Sdf.ValueTypeNames.Float, float(a.reg))
     _attr(ip, S.ATTR_SHEET_OFFSET, Sdf.ValueTypeNames.Float, a.sheet_offset)
     _attr(ip, S.ATTR_VERSION, Sdf.ValueTypeNames.Int, S.DEFORMER_VERSION, uniform=True)
+    return tmpl
 
-    if len(a.stem_points) and len(a.stem_faces):
-        stem = UsdGeom.Mesh.Define(stage, f"{root}/Stem")
-        stem.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-        _set_stem_geometry(stem, a)
-        UsdShade.MaterialBindingAPI.Apply(stem.GetPrim()).Bind(stem_mat)
-        stem.GetPrim().SetCustomDataByKey("leaffit:role", "stem")
 
-    stage.GetRootLayer().documentation = (
-        f"LeafFit plant geometry: the payload of ./{out.name} (open that file)")
-    stage.GetRootLayer().Save()
+def _write_root_layer(out: Path, a: PlantAsset, name: str, geom_rel: str, baked_rel: str | None,
+                      baked_lods: bool, tmpl) -> None:
+    """The root layer ``out``: the asset's interface; the geometry arrives through the payload
+    ``geom_rel``; the leafRepresentation and LOD variant sets. tmpl : the template leaf Mesh of
+    the geometry layer."""
+    from pxr import Kind, Sdf, Usd, UsdGeom
 
-    # the root layer: the asset's interface; the geometry above arrives through a payload
+    root = f"/{name}"
     stage = Usd.Stage.CreateNew(str(out))
     _stage_units(stage, a)
     plant = UsdGeom.Xform.Define(stage, root).GetPrim()
@@ -497,32 +525,41 @@ def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, f
     Usd.ModelAPI(plant).SetAssetIdentifier(Sdf.AssetPath(f"./{out.name}"))
     plant.SetCustomDataByKey("leaffit", _custom_data(a))
     plant.GetPayloads().AddPayload(geom_rel)
-    # explicit leaves for tools without the deformer: a variant whose geometry is a payload file
     if baked_rel:
-        vset = plant.GetVariantSets().AddVariantSet("leafRepresentation")
-        vset.AddVariant("deformer")
-        vset.AddVariant("baked")
-        vset.SetVariantSelection("baked")
-        with vset.GetVariantEditContext():
-            baked = UsdGeom.Xform.Define(stage, f"{root}/BakedLeaves")
-            baked.GetPrim().GetPayloads().AddPayload(baked_rel)
-            baked.GetPrim().SetCustomDataByKey("leaffit:role", "baked")
-            # deactivate (not hide) the instancer: Blender 4.2 crashes importing an invisible
-            # PointInstancer next to other meshes; readers force the 'deformer' variant
-            stage.OverridePrim(inst_path).SetActive(False)
-            for k in range(len(a.lods) + 1 if baked_lods else 1):
-                topo = stage.OverridePrim(f"{root}/BakedLeaves/{_baked_topology(k)}")
-                for side, mat in (("front", "LeafFront"), ("back", "LeafBack")):
-                    sub = stage.OverridePrim(f"{topo.GetPath()}/{side}")
-                    UsdShade.MaterialBindingAPI.Apply(sub).Bind(
-                        UsdShade.Material(stage.GetPrimAtPath(f"{looks}/{mat}")))
-        vset.SetVariantSelection("deformer")
+        _author_baked_variant(stage, plant, a, root, baked_rel, baked_lods)
     if a.lods:
         _author_lod_variants(stage, plant, a, tmpl, root, bool(baked_rel) and baked_lods)
     stage.GetRootLayer().documentation = (
         "LeafFit plant: one template leaf Mesh deformed per instance by affine MLS "
         "(LeafFitMLSDeformerAPI); written by leaffit-usd")
     stage.GetRootLayer().Save()
+
+
+def _author_baked_variant(stage, plant, a: PlantAsset, root: str, baked_rel: str,
+                          baked_lods: bool) -> None:
+    """Variant set ``leafRepresentation`` (deformer, the default | baked): explicit leaves for
+    tools without the deformer, a variant whose geometry is the payload file ``baked_rel``."""
+    from pxr import UsdGeom, UsdShade
+
+    looks = f"{root}/Looks"
+    vset = plant.GetVariantSets().AddVariantSet("leafRepresentation")
+    vset.AddVariant("deformer")
+    vset.AddVariant("baked")
+    vset.SetVariantSelection("baked")
+    with vset.GetVariantEditContext():
+        baked = UsdGeom.Xform.Define(stage, f"{root}/BakedLeaves")
+        baked.GetPrim().GetPayloads().AddPayload(baked_rel)
+        baked.GetPrim().SetCustomDataByKey("leaffit:role", "baked")
+        # deactivate (not hide) the instancer: Blender 4.2 crashes importing an invisible
+        # PointInstancer next to other meshes; readers force the 'deformer' variant
+        stage.OverridePrim(f"{root}/Leaves").SetActive(False)
+        for k in range(len(a.lods) + 1 if baked_lods else 1):
+            topo = stage.OverridePrim(f"{root}/BakedLeaves/{_baked_topology(k)}")
+            for side, mat in (("front", "LeafFront"), ("back", "LeafBack")):
+                sub = stage.OverridePrim(f"{topo.GetPath()}/{side}")
+                UsdShade.MaterialBindingAPI.Apply(sub).Bind(
+                    UsdShade.Material(stage.GetPrimAtPath(f"{looks}/{mat}")))
+    vset.SetVariantSelection("deformer")
 
 
 def _author_lod_variants(stage, plant, a: PlantAsset, tmpl, root: str, baked: bool) -> None:
