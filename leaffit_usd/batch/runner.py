@@ -112,6 +112,34 @@ def _fmt_s(s: float) -> str:
     return f"{s:.1f}"
 
 
+@dataclass
+class _Planned:
+    """One capture of the batch: its options (the base with the manifest's overrides), their JSON
+    and sha256, the input's sha256, and ``kept``: "done" (complete and up to date), "failed" (a
+    bad-input failure that would fail again) or "" (convert)."""
+
+    capture: Capture
+    options: object
+    odict: dict
+    osha: str
+    isha: str
+    kept: str
+
+
+@dataclass
+class _Run:
+    """What one ``run_batch`` works on: the state file, one summary row per capture (also by
+    name), the tasks to convert, this run's record in the state, the progress bar (or None)."""
+
+    outdir: Path
+    state: BatchState
+    rows: list = field(default_factory=list)
+    by_name: dict = field(default_factory=dict)
+    tasks: list = field(default_factory=list)
+    run_info: dict = field(default_factory=dict)
+    bar: object = None
+
+
 def run_batch(captures: list[Capture], outdir, options: BatchOptions) -> BatchSummary:
     """Convert every capture into ``OUTDIR/NAME/`` and keep ``OUTDIR/batch.json`` up to date.
 
@@ -120,10 +148,52 @@ def run_batch(captures: list[Capture], outdir, options: BatchOptions) -> BatchSu
     (no partial output is left), record them as cancelled, and the summary's ``interrupted``
     names the signal.
     """
-    from leaffit_usd.io_util import file_sha256
     from leaffit_usd.pipeline import ConvertOptions
 
     o = options
+    _check_options(o)
+    base = o.convert if o.convert is not None else ConvertOptions()
+    outdir = Path(outdir).resolve()
+    t0 = time.perf_counter()
+    started = now_iso()
+    summary = BatchSummary()
+
+    with batch_lock(outdir):
+        run = _Run(outdir=outdir, state=BatchState(outdir))
+        _clean_leftovers(outdir)
+        plan = _plan(captures, base, run.state, o.force)
+        n_run = sum(1 for q in plan if not q.kept)
+        if o.executor == "dask" and o.scheduler:
+            jobs, threads = max(1, o.jobs or 1), o.threads or 1
+        else:
+            jobs, threads = plan_parallelism(n_run, o.jobs, o.threads)
+        summary.jobs, summary.threads = jobs, threads
+        _queue(run, plan, o, threads, started)
+        run.run_info = {"started": started, "finished": None, "seconds": None,
+                        "captures": len(captures), "converted": 0,
+                        "skipped": sum(r["status"] == "skipped" for r in run.rows),
+                        "not_retried": sum(r.get("retried") is False for r in run.rows),
+                        "failed": 0, "exit_code": None, "executor": o.executor, "jobs": jobs,
+                        "threads": threads}
+        run.state.data["runs"].append(run.run_info)
+        run.state.save()
+        run.bar = _start_progress(run, o.progress, jobs, threads)
+        old = _catch_interrupts()
+        try:
+            if run.tasks:
+                _dispatch(run, o, jobs)
+        except _Interrupted as e:
+            summary.interrupted = signal.Signals(e.signum).name
+            _cancel_unfinished(run, summary.interrupted)
+        finally:
+            for s, h in old.items():
+                signal.signal(s, h)
+            _finish(run, summary, t0)
+    return summary
+
+
+def _check_options(o: BatchOptions) -> None:
+    """UserError (ParameterError) for a bad format, executor or timeout, or dask missing."""
     if o.stage_format not in STAGE_FORMATS:
         raise ParameterError("--format", " | ".join(STAGE_FORMATS), o.stage_format)
     if o.executor not in ("local", "dask"):
@@ -135,163 +205,173 @@ def run_batch(captures: list[Capture], outdir, options: BatchOptions) -> BatchSu
         if not dask_available():
             from leaffit_usd.errors import UserError
             raise UserError("--executor dask needs dask.distributed: pip install 'leaffit-usd[dask]'")
-    base = o.convert if o.convert is not None else ConvertOptions()
-    outdir = Path(outdir).resolve()
-    t0 = time.perf_counter()
-    started = now_iso()
-    summary = BatchSummary()
 
-    with batch_lock(outdir):
-        state = BatchState(outdir)
-        _clean_leftovers(outdir)
-        tasks, rows, by_name = [], [], {}
-        n_run = 0
-        plan = []
-        for c in captures:
-            copt = dataclasses.replace(base, **c.overrides) if c.overrides else base
-            odict = options_json(copt)
-            plan.append((c, copt, odict, options_sha256(odict), file_sha256(c.path)))
 
-        def keep(name, isha, osha) -> str:
-            """"done": complete and up to date; "failed": a bad-input failure (exit code 2) of
-            this very input with these options, which would fail again; "" = convert."""
-            if o.force:
-                return ""
-            if state.is_complete(name, isha, osha):
-                return "done"
-            rec = state.record(name)
-            if rec.get("status") == "failed" and rec.get("exit_code") == 2 and \
-                    rec.get("input_sha256") == isha and rec.get("options_sha256") == osha:
-                return "failed"
-            return ""
+def _plan(captures: list[Capture], base, state: BatchState, force: bool) -> list[_Planned]:
+    """Each capture's options and hashes, and whether it is kept as it is."""
+    from leaffit_usd.io_util import file_sha256
 
-        n_run = sum(1 for c, _, _, osha, isha in plan if not keep(c.name, isha, osha))
-        if o.executor == "dask" and o.scheduler:
-            jobs, threads = max(1, o.jobs or 1), o.threads or 1
-        else:
-            jobs, threads = plan_parallelism(n_run, o.jobs, o.threads)
-        summary.jobs, summary.threads = jobs, threads
-        for c, copt, odict, osha, isha in plan:
-            row = {"name": c.name, "input": str(c.path), "status": "", "leaves": None,
-                   "gaussians": None, "seconds": None, "error": "",
-                   "stage": f"{c.name}/{c.name}.{o.stage_format}"}
-            rows.append(row)
-            by_name[c.name] = row
-            if c.renamed_from:
-                log.warning("batch: %s is named %s (%s is taken)", c.path, c.name, c.renamed_from)
-            kept = keep(c.name, isha, osha)
-            if kept == "done":
-                rec = state.record(c.name)
-                row.update(status="skipped", leaves=rec.get("counts", {}).get("leaves"),
-                           gaussians=rec.get("counts", {}).get("gaussians"),
-                           seconds=rec.get("seconds"))
-                continue
-            if kept == "failed":
-                row.update(status="failed", error=state.record(c.name).get("error", ""),
-                           retried=False)
-                continue
-            tasks.append(CaptureTask(
-                name=c.name, input=str(c.path), outdir=str(outdir),
-                stage_name=f"{c.name}.{o.stage_format}", options=copt, threads=threads,
-                timeout=o.timeout, max_memory=o.max_memory))
-            state.captures[c.name] = {
-                "status": "pending", "input": str(c.path), "input_sha256": isha,
-                "options_sha256": osha, "options": odict, "error": "", "exit_code": None,
-                "seconds": None, "timings": {}, "counts": {}, "outputs": {},
-                "stage": row["stage"], "log": f"{c.name}/{LOG_NAME}", "host": "",
-                "threads": threads, "started": started, "finished": None,
-                "renamed_from": c.renamed_from}
-        run_info = {"started": started, "finished": None, "seconds": None,
-                    "captures": len(captures), "converted": 0,
-                    "skipped": sum(r["status"] == "skipped" for r in rows),
-                    "not_retried": sum(r.get("retried") is False for r in rows),
-                    "failed": 0, "exit_code": None, "executor": o.executor, "jobs": jobs,
-                    "threads": threads}
-        state.data["runs"].append(run_info)
-        state.save()
+    plan = []
+    for c in captures:
+        copt = dataclasses.replace(base, **c.overrides) if c.overrides else base
+        odict = options_json(copt)
+        osha, isha = options_sha256(odict), file_sha256(c.path)
+        plan.append(_Planned(c, copt, odict, osha, isha, _kept(state, c.name, isha, osha, force)))
+    return plan
 
-        bar = None
-        if o.progress and tasks:
-            from tqdm import tqdm
 
-            bar = tqdm(total=len(tasks), unit="capture", file=sys.stderr, dynamic_ncols=True,
-                       desc=f"batch ({jobs} job{'s' if jobs > 1 else ''} x {threads} thread"
-                            f"{'s' if threads > 1 else ''})")
-        if o.progress:
-            sk = run_info["skipped"]
-            nr = run_info["not_retried"]
-            msg = (f"batch: {len(tasks)} to convert, {sk} up to date (skipped)"
-                   + (f", {nr} bad input(s) not retried" if nr else "") + f" -> {outdir}")
-            with contextlib.suppress(OSError):
-                (bar.write(msg, file=sys.stderr) if bar else sys.stderr.write(msg + "\n"))
+def _kept(state: BatchState, name: str, isha: str, osha: str, force: bool) -> str:
+    """"done": complete and up to date; "failed": a bad-input failure (exit code 2) of
+    this very input with these options, which would fail again; "" = convert."""
+    if force:
+        return ""
+    if state.is_complete(name, isha, osha):
+        return "done"
+    rec = state.record(name)
+    if rec.get("status") == "failed" and rec.get("exit_code") == 2 and \
+            rec.get("input_sha256") == isha and rec.get("options_sha256") == osha:
+        return "failed"
+    return ""
 
-        def on_result(r: CaptureResult) -> None:
-            rep = r.report or {}
-            counts = rep.get("counts", {})
-            state.update(r.name, status=r.status, error=r.error, exit_code=r.exit_code,
-                         seconds=r.seconds, timings=rep.get("timings", {}), counts=counts,
-                         outputs=r.outputs, host=r.host, finished=now_iso(),
-                         fit={k: rep.get("fit", {}).get(k) for k in ("chamfer_mean", "chamfer_max")}
-                         if rep.get("fit") else {})
-            state.save()
-            row = by_name[r.name]
-            row.update(status=r.status, leaves=counts.get("leaves"), gaussians=counts.get("gaussians"),
-                       seconds=r.seconds, error=r.error)
-            if bar is not None:
-                with contextlib.suppress(OSError):   # a closed stderr must not stop the batch
-                    _progress(r, counts)
 
-        def _progress(r, counts):
-            bar.update(1)
-            nf = sum(1 for x in rows if x["status"] in ("failed", "cancelled"))
-            if nf:
-                bar.set_postfix(failed=nf)
-            line = (f"done    {r.name}: {counts.get('leaves')} leaves, {_fmt_s(r.seconds)} s"
-                    if r.status == "done" else f"{r.status:<7} {r.name}: {r.error}")
-            bar.write(line, file=sys.stderr)
+def _queue(run: _Run, plan: list[_Planned], o: BatchOptions, threads: int, started: str) -> None:
+    """A summary row per capture; kept captures are filled from the state, the others become
+    tasks and are recorded as pending."""
+    for q in plan:
+        c = q.capture
+        row = {"name": c.name, "input": str(c.path), "status": "", "leaves": None,
+               "gaussians": None, "seconds": None, "error": "",
+               "stage": f"{c.name}/{c.name}.{o.stage_format}"}
+        run.rows.append(row)
+        run.by_name[c.name] = row
+        if c.renamed_from:
+            log.warning("batch: %s is named %s (%s is taken)", c.path, c.name, c.renamed_from)
+        if q.kept == "done":
+            rec = run.state.record(c.name)
+            row.update(status="skipped", leaves=rec.get("counts", {}).get("leaves"),
+                       gaussians=rec.get("counts", {}).get("gaussians"),
+                       seconds=rec.get("seconds"))
+            continue
+        if q.kept == "failed":
+            row.update(status="failed", error=run.state.record(c.name).get("error", ""),
+                       retried=False)
+            continue
+        run.tasks.append(CaptureTask(
+            name=c.name, input=str(c.path), outdir=str(run.outdir),
+            stage_name=f"{c.name}.{o.stage_format}", options=q.options, threads=threads,
+            timeout=o.timeout, max_memory=o.max_memory))
+        run.state.captures[c.name] = {
+            "status": "pending", "input": str(c.path), "input_sha256": q.isha,
+            "options_sha256": q.osha, "options": q.odict, "error": "", "exit_code": None,
+            "seconds": None, "timings": {}, "counts": {}, "outputs": {},
+            "stage": row["stage"], "log": f"{c.name}/{LOG_NAME}", "host": "",
+            "threads": threads, "started": started, "finished": None,
+            "renamed_from": c.renamed_from}
 
-        def handler(signum, frame):
-            for s in old:                # one interruption: the clean-up is not interrupted
-                signal.signal(s, signal.SIG_IGN)
-            raise _Interrupted(signum)
 
-        old = {}
-        if hasattr(signal, "SIGTERM") and _in_main_thread():
-            for s in (signal.SIGTERM, signal.SIGINT):
-                old[s] = signal.signal(s, handler)
-        try:
-            if tasks:
-                if o.executor == "dask":
-                    from leaffit_usd.batch.executors import run_dask
-                    run_dask(tasks, jobs, on_result, o.scheduler)
-                else:
-                    from leaffit_usd.batch.executors import run_local
-                    run_local(tasks, jobs, on_result)
-        except _Interrupted as e:
-            summary.interrupted = signal.Signals(e.signum).name
-            for t in tasks:
-                row = by_name[t.name]
-                if not row["status"]:
-                    row.update(status="cancelled", error=f"batch interrupted ({summary.interrupted})")
-                if state.record(t.name).get("status") == "pending":
-                    state.update(t.name, status="cancelled", error=row["error"], finished=now_iso())
-        finally:
-            for s, h in old.items():
-                signal.signal(s, h)
-            _clean_leftovers(outdir)
-            summary.rows = rows
-            summary.seconds = round(time.perf_counter() - t0, 3)
-            summary.exit_code = 0 if all(r["status"] in ("done", "skipped") for r in rows) else 1
-            run_info.update(finished=now_iso(), seconds=summary.seconds,
-                            converted=summary.count("done"),
-                            failed=summary.count("failed") + summary.count("cancelled"),
-                            exit_code=summary.exit_code if not summary.interrupted else None,
-                            interrupted=summary.interrupted or None)
-            state.save()
-            if bar is not None:     # after the save: stderr may be a closed pipe by now
-                with contextlib.suppress(Exception):
-                    bar.close()
-    return summary
+def _start_progress(run: _Run, progress: bool, jobs: int, threads: int):
+    """The tqdm bar (None without progress or tasks) and the opening line on stderr."""
+    bar = None
+    if progress and run.tasks:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(run.tasks), unit="capture", file=sys.stderr, dynamic_ncols=True,
+                   desc=f"batch ({jobs} job{'s' if jobs > 1 else ''} x {threads} thread"
+                        f"{'s' if threads > 1 else ''})")
+    if progress:
+        sk = run.run_info["skipped"]
+        nr = run.run_info["not_retried"]
+        msg = (f"batch: {len(run.tasks)} to convert, {sk} up to date (skipped)"
+               + (f", {nr} bad input(s) not retried" if nr else "") + f" -> {run.outdir}")
+        with contextlib.suppress(OSError):
+            (bar.write(msg, file=sys.stderr) if bar else sys.stderr.write(msg + "\n"))
+    return bar
+
+
+def _on_result(run: _Run, r: CaptureResult) -> None:
+    """Record a finished capture in the state (saved at once) and its row; advance the bar."""
+    rep = r.report or {}
+    counts = rep.get("counts", {})
+    run.state.update(r.name, status=r.status, error=r.error, exit_code=r.exit_code,
+                     seconds=r.seconds, timings=rep.get("timings", {}), counts=counts,
+                     outputs=r.outputs, host=r.host, finished=now_iso(),
+                     fit={k: rep.get("fit", {}).get(k) for k in ("chamfer_mean", "chamfer_max")}
+                     if rep.get("fit") else {})
+    run.state.save()
+    row = run.by_name[r.name]
+    row.update(status=r.status, leaves=counts.get("leaves"), gaussians=counts.get("gaussians"),
+               seconds=r.seconds, error=r.error)
+    if run.bar is not None:
+        with contextlib.suppress(OSError):   # a closed stderr must not stop the batch
+            _progress(run, r, counts)
+
+
+def _progress(run: _Run, r: CaptureResult, counts: dict) -> None:
+    bar = run.bar
+    bar.update(1)
+    nf = sum(1 for x in run.rows if x["status"] in ("failed", "cancelled"))
+    if nf:
+        bar.set_postfix(failed=nf)
+    line = (f"done    {r.name}: {counts.get('leaves')} leaves, {_fmt_s(r.seconds)} s"
+            if r.status == "done" else f"{r.status:<7} {r.name}: {r.error}")
+    bar.write(line, file=sys.stderr)
+
+
+def _catch_interrupts() -> dict:
+    """In the main thread, SIGTERM / SIGINT raise ``_Interrupted`` (once: the clean-up is not
+    interrupted). Returns the previous handlers, by signal, for the caller to restore."""
+    old = {}
+
+    def handler(signum, frame):
+        for s in old:                # one interruption: the clean-up is not interrupted
+            signal.signal(s, signal.SIG_IGN)
+        raise _Interrupted(signum)
+
+    if hasattr(signal, "SIGTERM") and _in_main_thread():
+        for s in (signal.SIGTERM, signal.SIGINT):
+            old[s] = signal.signal(s, handler)
+    return old
+
+
+def _dispatch(run: _Run, o: BatchOptions, jobs: int) -> None:
+    """Convert the tasks with the chosen executor; each result goes through ``_on_result``."""
+    def on_result(r: CaptureResult) -> None:
+        _on_result(run, r)
+
+    if o.executor == "dask":
+        from leaffit_usd.batch.executors import run_dask
+        run_dask(run.tasks, jobs, on_result, o.scheduler)
+    else:
+        from leaffit_usd.batch.executors import run_local
+        run_local(run.tasks, jobs, on_result)
+
+
+def _cancel_unfinished(run: _Run, signame: str) -> None:
+    """After an interruption: tasks without a result are cancelled (row and state)."""
+    for t in run.tasks:
+        row = run.by_name[t.name]
+        if not row["status"]:
+            row.update(status="cancelled", error=f"batch interrupted ({signame})")
+        if run.state.record(t.name).get("status") == "pending":
+            run.state.update(t.name, status="cancelled", error=row["error"], finished=now_iso())
+
+
+def _finish(run: _Run, summary: BatchSummary, t0: float) -> None:
+    """Remove work folders, fill the summary and this run's record, save the state, close the bar."""
+    _clean_leftovers(run.outdir)
+    rows = run.rows
+    summary.rows = rows
+    summary.seconds = round(time.perf_counter() - t0, 3)
+    summary.exit_code = 0 if all(r["status"] in ("done", "skipped") for r in rows) else 1
+    run.run_info.update(finished=now_iso(), seconds=summary.seconds,
+                        converted=summary.count("done"),
+                        failed=summary.count("failed") + summary.count("cancelled"),
+                        exit_code=summary.exit_code if not summary.interrupted else None,
+                        interrupted=summary.interrupted or None)
+    run.state.save()
+    if run.bar is not None:     # after the save: stderr may be a closed pipe by now
+        with contextlib.suppress(Exception):
+            run.bar.close()
 
 
 def _in_main_thread() -> bool:
