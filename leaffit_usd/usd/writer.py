@@ -702,60 +702,59 @@ def write_baked_layer(out: Path, a: PlantAsset, leaves: np.ndarray, lod_leaves: 
     The class prim sits under the payload's root prim so the inherit arc is remapped when the
     payload is loaded; material bindings are authored by the main layer's 'baked' variant.
     """
-    from pxr import Sdf, Usd, UsdGeom, Vt
+    from pxr import Usd, UsdGeom
 
     leaves = _check_leaves(a, leaves)
-    tints = _tints(a)
     stage = Usd.Stage.CreateNew(str(out))
-    up = str(a.metadata.get("up_axis", "Y")).upper()
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
-    UsdGeom.SetStageMetersPerUnit(stage, float(a.metadata.get("meters_per_unit", 1.0)))
+    _stage_units(stage, a)
     root = UsdGeom.Xform.Define(stage, "/BakedLeaves")
     stage.SetDefaultPrim(root.GetPrim())
-    topo_path = "/BakedLeaves/LeafTopology"
-    topo = stage.CreateClassPrim(topo_path)
-    topo.SetTypeName("Mesh")
-    mesh = UsdGeom.Mesh(topo)
-    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-    mesh.CreateDoubleSidedAttr(single_sheet(a))
-    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(a.template_faces), 3, np.int32)))
-    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(a.template_faces, np.int32).ravel()))
-    st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
-    st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(a.template_uvs, np.float32)))
-    _bind_sides(stage, mesh, _face_sides(a), None)
-    for j in range(a.n_leaves):
-        leaf = UsdGeom.Mesh.Define(stage, f"/BakedLeaves/leaf_{j:04d}")
-        leaf.GetPrim().GetInherits().AddInherit(topo_path)
-        leaf.CreatePointsAttr(vec3f_array(leaves[j]))
-        leaf.CreateExtentAttr(extent(leaves[j]))
-        leaf.GetPrim().SetCustomDataByKey("leaffit:leafLabel", int(a.leaf_labels[j]))
-        if tints is not None:
-            set_leaf_tint(leaf, tints[j])
+    topo_path = f"/BakedLeaves/{_baked_topology(0)}"
+    _author_baked_topology(stage, topo_path, a, single_sheet(a))
+    _author_baked_leaves(stage, "/BakedLeaves", topo_path, leaves, a.leaf_labels, _tints(a))
     # coarser levels of detail: one inactive group each (the main layer's LOD variant
     # deactivates the LOD0 leaves and activates its group)
     for k, lod in enumerate(a.lods if lod_leaves else [], start=1):
         la = a.at_lod(k)
         lv = _check_leaves(la, lod_leaves[k - 1]).astype(np.float32)
         tp = f"/BakedLeaves/{_baked_topology(k)}"
-        cls = stage.CreateClassPrim(tp)
-        cls.SetTypeName("Mesh")
-        m = UsdGeom.Mesh(cls)
-        m.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-        m.CreateDoubleSidedAttr(False)
-        m.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(la.template_faces), 3, np.int32)))
-        m.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(la.template_faces, np.int32).ravel()))
-        pv = UsdGeom.PrimvarsAPI(m).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
-        pv.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(la.template_uvs, np.float32)))
-        _bind_sides(stage, m, _face_sides(la), None)
+        _author_baked_topology(stage, tp, la, False)
         grp = UsdGeom.Xform.Define(stage, f"/BakedLeaves/LOD{k}")
-        for j in range(a.n_leaves):
-            leaf = UsdGeom.Mesh.Define(stage, f"/BakedLeaves/LOD{k}/leaf_{j:04d}")
-            leaf.GetPrim().GetInherits().AddInherit(tp)
-            leaf.CreatePointsAttr(vec3f_array(lv[j]))
-            leaf.CreateExtentAttr(extent(lv[j]))
-            leaf.GetPrim().SetCustomDataByKey("leaffit:leafLabel", int(a.leaf_labels[j]))
+        _author_baked_leaves(stage, f"/BakedLeaves/LOD{k}", tp, lv, a.leaf_labels, None)
         grp.GetPrim().SetActive(False)
     stage.GetRootLayer().Save()
+
+
+def _author_baked_topology(stage, path: str, a: PlantAsset, double_sided: bool) -> None:
+    """The class prim ``path`` the baked leaves of one level inherit: faces, st, side subsets."""
+    from pxr import Sdf, UsdGeom, Vt
+
+    topo = stage.CreateClassPrim(path)
+    topo.SetTypeName("Mesh")
+    mesh = UsdGeom.Mesh(topo)
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateDoubleSidedAttr(double_sided)
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(a.template_faces), 3, np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(a.template_faces, np.int32).ravel()))
+    st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+    st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(a.template_uvs, np.float32)))
+    _bind_sides(stage, mesh, _face_sides(a), None)
+
+
+def _author_baked_leaves(stage, parent: str, topo_path: str, leaves: np.ndarray, labels,
+                         tints) -> None:
+    """``parent/leaf_0000`` ...: one Mesh per leaf inheriting ``topo_path``, with its points
+    ((L, V, 3) ``leaves``), extent, label ((L,) ``labels``) and, if given, tint ((L, 3))."""
+    from pxr import UsdGeom
+
+    for j in range(len(leaves)):
+        leaf = UsdGeom.Mesh.Define(stage, f"{parent}/leaf_{j:04d}")
+        leaf.GetPrim().GetInherits().AddInherit(topo_path)
+        leaf.CreatePointsAttr(vec3f_array(leaves[j]))
+        leaf.CreateExtentAttr(extent(leaves[j]))
+        leaf.GetPrim().SetCustomDataByKey("leaffit:leafLabel", int(labels[j]))
+        if tints is not None:
+            set_leaf_tint(leaf, tints[j])
 
 
 # ----------------------------------------------------------------------------------------------
