@@ -8,6 +8,7 @@ import numpy as np
 from leaffit_usd.errors import ParameterError
 
 METHODS = ("auto", "bpa", "planar")
+UV_LAYOUTS = ("envelope", "fit", "square")
 
 
 @dataclass
@@ -22,8 +23,12 @@ class MeshParams:
     bpa_radii : ball radii, multiples of the samples' median nearest-neighbour spacing
     alpha : planar method's alpha-shape circumradius, multiple of the same spacing
     texture_margin : empty border around the leaf in the texture, fraction of its extent
-    uv_layout : "fit" (the chart's bounding box fills the square texture: texels follow the
-        leaf's aspect ratio) or "square" (square texels, the leaf's larger extent spans it)
+    uv_layout : "envelope" (each column of the leaf, base -> apex, is straightened and widened
+        across the texture: the leaf fills it, :class:`uv_chart.UVChart`), "fit" (planar: the
+        chart's bounding box fills the square texture, texels follow the leaf's aspect ratio)
+        or "square" (planar, square texels, the leaf's larger extent spans it)
+    chart_min_width : the envelope chart widens no column less than this fraction of the leaf's
+        largest half-width (limits the stretch at the base and the apex)
     supersample : the bake renders at this many times the texture size per axis and
         box-filters down (premultiplied), then divides by the accumulated alpha
     clean_outline : re-triangulate the sheet inside a smooth outline curve (constrained
@@ -39,7 +44,8 @@ class MeshParams:
     bpa_radii: tuple = (2.0, 3.0, 4.0)
     alpha: float = 2.5
     texture_margin: float = 0.01
-    uv_layout: str = "fit"
+    uv_layout: str = "envelope"
+    chart_min_width: float = 0.3
     supersample: int = 2
     clean_outline: bool = True
     lod_vertices: tuple = (512, 128)
@@ -56,14 +62,15 @@ class MeshParams:
         radii = tuple(self.bpa_radii)
         if not radii or not all(np.isfinite(r) and r > 0 for r in radii):
             raise ParameterError("bpa_radii", "positive multiples of the sample spacing", self.bpa_radii)
-        if self.uv_layout not in ("fit", "square"):
-            raise ParameterError("uv_layout", "fit or square", self.uv_layout)
+        if self.uv_layout not in UV_LAYOUTS:
+            raise ParameterError("uv_layout", ", ".join(UV_LAYOUTS), self.uv_layout)
         if not isinstance(self.supersample, (int, np.integer)) or not 1 <= self.supersample <= 4:
             raise ParameterError("supersample", "an integer in 1..4", self.supersample)
         if not all(isinstance(n, (int, np.integer)) and n >= 8 for n in tuple(self.lod_vertices)):
             raise ParameterError("lod_vertices", "integers >= 8", self.lod_vertices)
         for name, lo, hi in (("alpha", 0.5, 100.0), ("texture_margin", 0.0, 0.45),
-                             ("alpha_threshold", 0.01, 0.99), ("min_coverage", 0.0, 1.0)):
+                             ("alpha_threshold", 0.01, 0.99), ("chart_min_width", 0.05, 1.0),
+                             ("min_coverage", 0.0, 1.0)):
             v = getattr(self, name)
             if not (np.isfinite(v) and lo <= v <= hi):
                 raise ParameterError(name, f"a number in [{lo}, {hi}]", v)

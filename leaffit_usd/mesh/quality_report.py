@@ -13,7 +13,7 @@ from leaffit_usd.mesh.template_gaussians import template_gaussians_local
 log = logging.getLogger("leaffit_usd")
 
 
-def quality_report(mesh: TemplateMesh, cloud_working, fits, sheet, checks, tinfo, bounds, params) -> dict:
+def quality_report(mesh: TemplateMesh, cloud_working, fits, sheet, checks, tinfo, chart, params) -> dict:
     """Plain-JSON quality figures of a template mesh (distances relative to the leaf length)."""
     P, F = mesh.sheet_points.astype(np.float64), mesh.sheet_faces.astype(np.int64)
     pts = np.asarray(fits.template_points, np.float64)
@@ -59,5 +59,13 @@ def quality_report(mesh: TemplateMesh, cloud_working, fits, sheet, checks, tinfo
         rep["min_angle_deg_p5"] = float(np.percentile(ang, 5))
     rep.update({k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in tinfo.items()})
     rep["texture_size"] = int(params.texture_size)
-    rep["uv_bounds"] = [float(b) for b in bounds]
+    rep["uv_chart"] = chart.kind
+    rep["uv_bounds"] = [float(b) for b in chart.bounds]
+    if len(F):
+        # the texels between vertices follow the uv interpolated linearly, not the chart's map:
+        # the largest gap at the triangles' centroids, in texels
+        cen = P[F].mean(1)
+        interp = mesh.uvs[: len(P)][F].astype(np.float64).mean(1)
+        gap = np.abs(interp - chart.uv(cen[:, :2])) * float(params.texture_size)
+        rep["uv_interpolation_texels_max"] = float(gap.max())
     return rep

@@ -471,7 +471,93 @@ def gaussian_skeleton(points: np.ndarray, labels: np.ndarray, root_index: int,
     sk = Skeleton(pos=pos, parent=parent, count=count.astype(np.int64),
                   members=idx[pts_ok], member_node=lab.astype(np.int64), spread=spread)
     sk = _reroot(sk, root)
-    return prune_spurs(sk, float(params.prune) * w)
+    sk = recentre_nodes(sk, points)
+    return centre_junctions(prune_spurs(sk, float(params.prune) * w))
+
+
+def _kasa_circle(q: np.ndarray) -> tuple[np.ndarray, float, float] | None:
+    """Algebraic circle fit (Kasa) of 2-D points q (M, 2), refitted once without the points
+    farther than 30 % of the radius from the circle: (centre (2,), radius, median
+    |distance - radius| / radius over all points), or None when degenerate."""
+    use = np.ones(len(q), bool)
+    for _ in range(2):
+        if use.sum() < 6:
+            return None
+        A = np.column_stack([q[use], np.ones(int(use.sum()))])
+        (D, E, F), *_ = np.linalg.lstsq(A, -(q[use] ** 2).sum(1), rcond=None)
+        r2 = D * D / 4 + E * E / 4 - F
+        if not np.isfinite(r2) or r2 <= 0:
+            return None
+        c = np.array([-D / 2, -E / 2])
+        r = float(np.sqrt(r2))
+        dev = np.abs(np.linalg.norm(q - c, axis=1) - r)
+        use = dev <= 0.3 * r
+    return c, r, float(np.median(dev)) / r
+
+
+def recentre_nodes(sk: Skeleton, points: np.ndarray, rounds: int = 2) -> Skeleton:
+    """Nodes moved onto their tube's axis, ``spread`` set to the tube's radius there.
+
+    A level-set piece of a tube reached from its side (a petiole leaving its stem, a sparse
+    capture) is an arc, not a ring: its centroid lies near the surface, and a smoothed axis
+    through such centroids measures radii too small. Each node takes the centre of a circle fitted
+    (Kasa, algebraic, unbiased on a partial arc) to its own and its neighbours' Gaussians,
+    projected across the local axis direction (parent -> child). Junctions and blobs, where the
+    Gaussians are no circle (median misfit above 25 % of the radius, a radius beyond 3x the
+    node's spread, a centre farther than 2x the spread), keep their centroid.
+    """
+    n = len(sk.pos)
+    if n < 2 or not len(sk.members):
+        return sk
+    kids = sk.children()
+    order = np.argsort(sk.member_node, kind="stable")
+    starts = np.searchsorted(sk.member_node[order], np.arange(n + 1))
+    own = [sk.members[order[starts[u]:starts[u + 1]]] for u in range(n)]
+    pos, spread = sk.pos.copy(), sk.spread.copy()
+    for _ in range(rounds):
+        new_pos, new_spread = pos.copy(), spread.copy()
+        for u in range(n):
+            p = int(sk.parent[u])
+            nb = [u] + ([p] if p >= 0 else []) + kids[u]
+            a = pos[p] if p >= 0 else pos[u]
+            b = np.mean([pos[k] for k in kids[u]], axis=0) if kids[u] else pos[u]
+            t = b - a
+            if np.linalg.norm(t) < 1e-12:
+                continue
+            t = t / np.linalg.norm(t)
+            Q = points[np.concatenate([own[k] for k in nb])]
+            if len(Q) < 8:
+                continue
+            e1 = np.cross(t, [1.0, 0, 0] if abs(t[0]) < 0.9 else [0, 1.0, 0])
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(t, e1)
+            fit = _kasa_circle((Q - pos[u]) @ np.stack([e1, e2], 1))
+            if fit is None:
+                continue
+            c, r, misfit = fit
+            ref = max(float(sk.spread[nb].max()), 1e-9)
+            if misfit > 0.25 or r > 3 * ref or np.linalg.norm(c) > 2 * ref:
+                continue
+            new_pos[u] = pos[u] + c[0] * e1 + c[1] * e2
+            new_spread[u] = r
+        pos, spread = new_pos, new_spread
+    return Skeleton(pos=pos, parent=sk.parent, count=sk.count, members=sk.members,
+                    member_node=sk.member_node, spread=spread)
+
+
+def centre_junctions(sk: Skeleton) -> Skeleton:
+    """A junction's centroid is pulled towards its branches (its Gaussians are of several
+    tubes): each junction moves halfway between its parent and its widest child (the parent
+    tube's continuation)."""
+    kids = sk.children()
+    pos = sk.pos.copy()
+    for u in range(len(pos)):
+        p = int(sk.parent[u])
+        if len(kids[u]) > 1 and p >= 0:
+            k = max(kids[u], key=lambda c: sk.spread[c])
+            pos[u] = 0.5 * (pos[p] + pos[k])
+    return Skeleton(pos=pos, parent=sk.parent, count=sk.count, members=sk.members,
+                    member_node=sk.member_node, spread=sk.spread)
 
 
 def _reroot(sk: Skeleton, root: int) -> Skeleton:
@@ -507,6 +593,22 @@ def prune_spurs(sk: Skeleton, min_length: float, min_count: int = 8) -> Skeleton
         sk = nxt
 
 
+def _inside_other_tubes(sk: Skeleton, chain: list[int], junction: int, keep: np.ndarray,
+                        ratio: float = 1.5) -> bool:
+    """True when every node of ``chain`` lies within ``ratio`` x the radius (``spread``) of the
+    nearest kept node outside the chain other than its ``junction`` (whose Gaussians, from
+    several tubes, give no radius)."""
+    other = keep.copy()
+    other[chain] = False
+    other[junction] = False
+    if not other.any():
+        return False
+    cand = np.flatnonzero(other)
+    d = np.linalg.norm(sk.pos[chain][:, None, :] - sk.pos[cand][None], axis=2)
+    k = np.argmin(d, axis=1)
+    return bool((d[np.arange(len(chain)), k] <= ratio * sk.spread[cand[k]]).all())
+
+
 def _prune_once(sk: Skeleton, min_length: float, min_count: int, measured: bool) -> Skeleton:
     kids = sk.children()
     keep = np.ones(len(sk.pos), bool)
@@ -522,8 +624,10 @@ def _prune_once(sk: Skeleton, min_length: float, min_count: int, measured: bool)
             continue  # the chain reaches the root: the whole skeleton, keep it
         length += float(np.linalg.norm(sk.pos[u] - sk.pos[j]))
         few = measured and int(sk.count[chain].sum()) < min_count
-        # a stub no longer than the junction is wide is a piece of the junction's own surface
-        if length < max(min_length, float(sk.spread[j])) or few:
+        # a stub no longer than the junction is wide is a piece of the junction's own surface;
+        # a chain running inside another tube is a second arc of that tube's surface
+        if length < max(min_length, float(sk.spread[j])) or few or \
+                (measured and _inside_other_tubes(sk, chain, j, keep)):
             keep[chain] = False
             target[chain] = j
     if keep.all():
@@ -841,6 +945,16 @@ def _tubes(sk: Skeleton, areas: np.ndarray, points: np.ndarray, params: StemPara
             if ext > 1e-9:
                 sm = np.concatenate([[sm[0] + ext * d], sm])
                 node_r = np.r_[node_r[0], node_r]
+        if len(sk.members) and len(sm) >= 2:
+            # likewise the tip node's centroid lies short of the stream's end (a petiole's leaf
+            # base): reach out to its farthest Gaussian along the end's direction
+            mem = points[sk.members[sk.member_node == chain[-1]]]
+            d = sm[-1] - sm[-2]
+            d /= max(np.linalg.norm(d), 1e-12)
+            ext = float(np.clip(((mem - sm[-1]) @ d).max(initial=0.0), 0.0, w))
+            if ext > 1e-9:
+                sm = np.concatenate([sm, [sm[-1] + ext * d]])
+                node_r = np.r_[node_r, node_r[-1]]
         if len(sm) < 2:
             continue
         # fine axis: cubic interpolation of the smoothed nodes

@@ -10,14 +10,17 @@ Pipeline (template local frame: petiole base at the origin, +X base -> apex, +Z 
 2. **Surface** — ball pivoting + repair (the paper's), or the planar fallback, see
    :mod:`leaffit_usd.mesh.surface`. ``method="auto"`` runs BPA and falls back to planar when the
    repaired BPA sheet fails the disk/thin checks, with a warning.
-3. **UVs** — planar, from the template frame's xy (the PCA-aligned view the fit uses). Chosen
-   over xatlas because the bake is an orthographic render along +-Z of that very frame: with
-   planar UVs a texel *is* a render pixel (no resampling through the surface, no seams, one
-   island per side, front and back registered), and the texture reads as a picture of the leaf,
-   which the retexture tool and artists edit directly. The cost: stretch where the leaf's
-   surface is steep in this view (strongly curled leaves); the report gives ``uv_stretch_max``
-   (largest 3D/2D edge length ratio). Texels are square; the leaf's larger xy extent (plus a
-   margin) spans the image.
+3. **UVs** — from the template frame's xy (the PCA-aligned view the fit uses), through a chart
+   (:class:`leaffit_usd.mesh.uv_chart.UVChart`). Chosen over xatlas because the bake is an
+   orthographic render along +-Z of that very frame (no seams, one island per side, front and
+   back registered, the texture reads as a picture of the leaf). The default ``envelope`` chart
+   keeps u = base -> apex and straightens and widens every column of the leaf across the
+   texture, so the leaf fills it (a cordate leaf covers ~65 % of its bounding box); the
+   Gaussians are carried into the chart's coordinates by its Jacobian and rendered there, so a
+   texel is still a render pixel. ``fit`` / ``square`` are the planar charts. The cost: stretch
+   where the leaf's surface is steep in this view (strongly curled leaves; the report gives
+   ``uv_stretch_max``, largest 3D/2D edge length ratio) and, between vertices, the linear
+   interpolation of the chart's smooth map (``uv_interpolation_texels_max``).
 4. **Two sides** — every sheet vertex and triangle is duplicated: front copy (CCW seen from +Z,
    normals +Z-ish, ``uv = (u, v)`` into ``front_texture``) then back copy (reversed winding,
    negated normals, ``uv = (1 - u, v)`` into ``back_texture``: the back texture is the leaf as
@@ -62,7 +65,7 @@ from leaffit_usd.mesh.sheet_choice import build_sheet
 from leaffit_usd.mesh.template_gaussians import template_row
 from leaffit_usd.mesh.texture_bake import bake_textures
 from leaffit_usd.mesh.texture_files import to_u8, write_textures
-from leaffit_usd.mesh.uv_chart import chart_bounds, planar_uvs, uv_bounds
+from leaffit_usd.mesh.uv_chart import UVChart, envelope_chart, planar_chart
 
 log = logging.getLogger("leaffit_usd")
 
@@ -111,29 +114,31 @@ def build_template_mesh(cloud_working, fits, params: MeshParams | None = None) -
     # UVs and textures
     size = int(params.texture_size)
     t0 = time.perf_counter()
-    bounds = chart_bounds(P[:, :2], params.texture_margin, size) if params.uv_layout == "fit" else \
-        uv_bounds(P[:, :2], size, params.texture_margin)
-    front, back, tinfo = bake_textures(cloud_working, fits, P, Fs, P[outer, :2], bounds, size,
+    if params.uv_layout == "envelope":
+        chart = envelope_chart(P[outer, :2], size, params.texture_margin, params.chart_min_width)
+    else:
+        chart = planar_chart(P[:, :2], size, params.texture_margin, params.uv_layout)
+    front, back, tinfo = bake_textures(cloud_working, fits, P, Fs, P[outer, :2], chart, size,
                                        params.alpha_threshold, params.min_coverage,
                                        int(params.supersample))
     timings["bake"] = time.perf_counter() - t0
 
-    lod0 = two_sided(P, Fs, bounds)
+    lod0 = two_sided(P, Fs, chart)
     mesh = TemplateMesh(
         points=lod0.points, faces=lod0.faces, normals=lod0.normals, uvs=lod0.uvs, side=lod0.side,
         front_texture=to_u8(front), back_texture=to_u8(back),
         sheet_points=P.astype(np.float32), sheet_faces=Fs.astype(np.int32),
     )
     t0 = time.perf_counter()
-    mesh.lods = [two_sided(*lod_sheet(rim_sheet, P, Fs, int(n)), bounds) for n in params.lod_vertices]
+    mesh.lods = [two_sided(*lod_sheet(rim_sheet, P, Fs, int(n)), chart) for n in params.lod_vertices]
     timings["lods"] = time.perf_counter() - t0
-    mesh.report = quality_report(mesh, cloud_working, fits, sheet, checks, tinfo, bounds, params)
+    mesh.report = quality_report(mesh, cloud_working, fits, sheet, checks, tinfo, chart, params)
     mesh.report["lod_vertices_per_side"] = [int(S)] + [int(len(l.points) // 2) for l in mesh.lods]
     mesh.report["timings"] = {k: round(v, 4) for k, v in timings.items()}
     return mesh
 
 
-def two_sided(P: np.ndarray, F: np.ndarray, bounds) -> TemplateLOD:
+def two_sided(P: np.ndarray, F: np.ndarray, chart: UVChart) -> TemplateLOD:
     """The two-sided layout of a sheet (points (S, 3), faces (G, 3)): front copy (CCW from +Z,
     normals, uv into the front texture) then back copy (reversed winding, negated normals,
     u mirrored into the back texture)."""
@@ -141,7 +146,7 @@ def two_sided(P: np.ndarray, F: np.ndarray, bounds) -> TemplateLOD:
     F = np.asarray(F, np.int64)
     S = len(P)
     normals = vertex_normals(P, F, undefined=(0.0, 0.0, 1.0))
-    uv_front = planar_uvs(P[:, :2], bounds)
+    uv_front = chart.uv(P[:, :2])
     uv_back = np.stack([1.0 - uv_front[:, 0], uv_front[:, 1]], 1)
     return TemplateLOD(points=np.concatenate([P, P]).astype(np.float32),
                        faces=np.concatenate([F, F[:, ::-1] + S]).astype(np.int32),

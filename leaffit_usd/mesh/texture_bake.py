@@ -11,13 +11,13 @@ import numpy as np
 from leaffit_usd.mesh.sheet_distance import signed_sheet_offset
 from leaffit_usd.mesh.template_gaussians import template_gaussians_local, template_view_colors
 from leaffit_usd.mesh.texture_alpha import inpainted, side_texture
-from leaffit_usd.mesh.uv_chart import rasterize_polygon
+from leaffit_usd.mesh.uv_chart import UVChart, rasterize_polygon
 
 log = logging.getLogger("leaffit_usd")
 
 
 def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np.ndarray,
-                  outline_xy: np.ndarray, bounds, size: int, thr: float = 0.5,
+                  outline_xy: np.ndarray, chart: UVChart, size: int, thr: float = 0.5,
                   min_coverage: float = 0.6, supersample: int = 1):
     """Front and back RGBA float textures (H, W, 4) in [0, 1], straight alpha, row 0 = top.
 
@@ -30,15 +30,17 @@ def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np
         the other layer, so the global depth sort of the rasteriser cannot mix the two layers
         where the blade is tilted in the view, and gaps in one layer show the other.
     outline_xy : (k, 2) the sheet's outer boundary, template frame (coverage and fallbacks)
-    bounds : the front texture's (xmin, xmax, ymin, ymax), template frame; the back texture is
-        its mirror image (column c of the back = column W-1-c of the front)
+    chart : the front texture's chart (:class:`UVChart`: template frame -> texture); the
+        Gaussians are carried into its coordinates and rendered over its bounds; the back texture
+        is its mirror image (column c of the back = column W-1-c of the front)
     Returns (front, back, info) with coverage figures and the fallback used, if any.
     """
     from leaffit_usd.splats.render import render_orthographic_np
 
     means, cov, _, opac = template_gaussians_local(cloud_working, fits)
     view_colors = template_view_colors(cloud_working, fits)  # view-dependent (SH) per side
-    mask = rasterize_polygon(outline_xy, size, size, bounds)
+    bounds = chart.bounds
+    mask = rasterize_polygon(chart.polygon(outline_xy, size), size, size, bounds)
     info = {}
     if len(means) == 0:
         log.warning("mesh: the template has no Gaussians to bake; textures are flat grey")
@@ -47,6 +49,7 @@ def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np
                                                  texture_fallback="flat")
     t0 = time.perf_counter()
     off = signed_sheet_offset(means, sheet_points, sheet_faces)
+    means_c, cov_c = chart.gaussians(means, cov)   # into the chart's coordinates
     info["front_gaussians"] = int((off >= 0).sum())
     info["back_gaussians"] = int((off < 0).sum())
 
@@ -61,7 +64,7 @@ def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np
             z = np.zeros((size, size))
             return z[..., None].repeat(3, -1), z
         n = size * ss
-        r = render_orthographic_np(means[sel], cov[sel], view_colors[from_below][sel], opac[sel],
+        r = render_orthographic_np(means_c[sel], cov_c[sel], view_colors[from_below][sel], opac[sel],
                                    n, n, bounds, from_below=from_below)
         c = np.asarray(r.color, np.float64).reshape(size, ss, size, ss, 3).mean((1, 3))
         a = np.asarray(r.alpha, np.float64).reshape(size, ss, size, ss).mean((1, 3))

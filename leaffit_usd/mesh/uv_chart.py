@@ -1,8 +1,10 @@
-"""Texture space of the template: the UV chart's bounds in the template frame (aspect-fitted or
-square texels), planar UVs into it, and rasterising an outline into texels.
+"""Texture space of the template: the chart from the template frame's xy to uv
+(:class:`UVChart`: planar -- aspect-fitted or square texels -- or the envelope chart that makes
+the leaf fill the texture), and rasterising an outline into texels.
 
-The bake renders orthographically along +-Z of the template frame over these very bounds, so a
-texel *is* a render pixel (image layout of the renderer: row 0 = ymax).
+The bake renders orthographically along +-Z of the template frame, carried into the chart's
+coordinates, over the chart's bounds, so a texel *is* a render pixel (image layout of the
+renderer: row 0 = ymax).
 """
 from __future__ import annotations
 
@@ -56,3 +58,139 @@ def rasterize_polygon(poly_xy: np.ndarray, width: int, height: int, bounds) -> n
     toggle = np.zeros((height, width + 1), np.int64)
     np.add.at(toggle, (r, col[r, e]), 1)
     return (np.cumsum(toggle, axis=1)[:, :width] % 2).astype(bool)
+
+
+# ---- the chart: template-frame xy -> chart coordinates -> uv --------------------------------------
+class UVChart:
+    """The template's texture chart: template-frame xy -> chart coordinates (X, W) -> uv.
+
+    ``bounds`` (xmin, xmax, ymin, ymax) are in chart coordinates and span the whole texture.
+    Planar charts (``envelope=None``) have (X, W) = (x, y). Envelope charts keep X = x (the leaf's
+    base -> apex axis) and straighten and widen each column of the leaf across the texture:
+
+        W = (y - c(x)) * H0 / h(x)
+
+    with c(x) a smooth centre line and h(x) >= the leaf's half-width about it (a smooth envelope,
+    never below ``min_width`` x its largest value H0), so the leaf fills the chart's height in
+    every column: the texture's texels are spent on the leaf, and a column is never sampled
+    more coarsely than by the planar chart (H0 / h >= 1). The map is smooth; the vertices carry
+    its exact uv, the texels between them its piecewise-linear interpolation.
+
+    envelope : (xs (K,), c (K,), h (K,)) float64 samples of c and h, template frame; c and h are
+        linear between the samples and constant beyond them.
+    """
+
+    def __init__(self, bounds, envelope=None):
+        self.bounds = tuple(float(b) for b in bounds)
+        self.envelope = None if envelope is None else tuple(np.asarray(a, np.float64) for a in envelope)
+
+    @property
+    def kind(self) -> str:
+        return "planar" if self.envelope is None else "envelope"
+
+    def _c_g(self, x: np.ndarray):
+        """c(x), g(x) = H0 / h(x) and their x-derivatives, each (N,)."""
+        xs, c, h = self.envelope
+        g = float(h.max()) / h
+        # the exact derivative of the piecewise-linear c and g: the slope of x's interval
+        i = np.clip(np.searchsorted(xs, x, side="right") - 1, 0, len(xs) - 2)
+        inside = (x >= xs[0]) & (x <= xs[-1])
+        dx = xs[i + 1] - xs[i]
+        dc = np.where(inside, (c[i + 1] - c[i]) / dx, 0.0)
+        dg = np.where(inside, (g[i + 1] - g[i]) / dx, 0.0)
+        return np.interp(x, xs, c), np.interp(x, xs, g), dc, dg
+
+    def to_chart(self, xy: np.ndarray) -> np.ndarray:
+        """(N, 2) chart coordinates of template-frame points ``xy`` (N, 2+)."""
+        xy = np.asarray(xy, np.float64)[:, :2]
+        if self.envelope is None:
+            return xy.copy()
+        c, g, _, _ = self._c_g(xy[:, 0])
+        return np.stack([xy[:, 0], (xy[:, 1] - c) * g], 1)
+
+    def uv(self, xy: np.ndarray) -> np.ndarray:
+        """(N, 2) front UVs of template-frame points ``xy`` (N, 2+)."""
+        return planar_uvs(self.to_chart(xy), self.bounds)
+
+    def gaussians(self, means: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Gaussians (means (M, 3), covariances (M, 3, 3), template frame) carried into chart
+        coordinates (z unchanged) by the map and its Jacobian at each mean (first order)."""
+        means = np.asarray(means, np.float64)
+        cov = np.asarray(cov, np.float64)
+        if self.envelope is None:
+            return means, cov
+        x, y = means[:, 0], means[:, 1]
+        c, g, dc, dg = self._c_g(x)
+        out = means.copy()
+        out[:, 1] = (y - c) * g
+        J = np.zeros((len(means), 3, 3))
+        J[:, 0, 0] = 1.0
+        J[:, 1, 0] = -dc * g + (y - c) * dg
+        J[:, 1, 1] = g
+        J[:, 2, 2] = 1.0
+        return out, np.einsum("nij,njk,nlk->nil", J, cov, J)
+
+    def polygon(self, poly_xy: np.ndarray, size: int) -> np.ndarray:
+        """A closed template-frame polygon (k, 2) in chart coordinates, its edges subdivided to
+        about a texel of a ``size``-texel texture first (the map bends straight edges)."""
+        p = np.asarray(poly_xy, np.float64)[:, :2]
+        if self.envelope is None or len(p) < 2:
+            return self.to_chart(p)
+        q = np.roll(p, -1, 0)
+        step = (self.bounds[1] - self.bounds[0]) / max(int(size), 1)
+        n = np.maximum(np.ceil(np.linalg.norm(q - p, axis=1) / max(step, 1e-12)), 1).astype(np.int64)
+        t = np.concatenate([np.arange(k) / k for k in n])
+        i = np.repeat(np.arange(len(p)), n)
+        dense = p[i] + t[:, None] * (q[i] - p[i])
+        return self.to_chart(dense)
+
+
+def planar_chart(xy: np.ndarray, size: int, margin: float, layout: str = "fit") -> UVChart:
+    """The planar chart of points ``xy`` (S, 2): aspect-fitted (``fit``) or square texels."""
+    b = chart_bounds(xy, margin, size) if layout == "fit" else uv_bounds(xy, size, margin)
+    return UVChart(b)
+
+
+def envelope_chart(outline_xy: np.ndarray, size: int, margin: float, min_width: float = 0.3,
+                   samples: int = 256) -> UVChart:
+    """The envelope chart (:class:`UVChart`) of a leaf whose outer outline is ``outline_xy``
+    (k, 2), template frame: per column x, the outline's lowest and highest y; their midpoint,
+    smoothed, is the centre line c(x); the half-width about it, widened by a running maximum,
+    smoothed and floored at ``min_width`` x its largest value, is h(x). Falls back to the planar
+    fitted chart for a degenerate outline."""
+    from scipy.ndimage import gaussian_filter1d, maximum_filter1d
+
+    p = np.asarray(outline_xy, np.float64)[:, :2]
+    if len(p) < 3 or np.ptp(p[:, 0]) <= 0 or np.ptp(p[:, 1]) <= 0:
+        return planar_chart(p, size, margin, "fit")
+    x0, x1 = float(p[:, 0].min()), float(p[:, 0].max())
+    xs = np.linspace(x0, x1, samples)
+    a, b = p, np.roll(p, -1, 0)
+    lo_x, hi_x = np.minimum(a[:, 0], b[:, 0]), np.maximum(a[:, 0], b[:, 0])
+    hit = (xs[:, None] >= lo_x[None]) & (xs[:, None] <= hi_x[None])            # (K, E)
+    dx = np.where(b[:, 0] != a[:, 0], b[:, 0] - a[:, 0], 1.0)
+    t = np.clip((xs[:, None] - a[None, :, 0]) / dx[None], 0.0, 1.0)
+    y = a[None, :, 1] + t * (b[:, 1] - a[:, 1])[None]
+    yu = np.where(hit, y, -np.inf).max(1)
+    yl = np.where(hit, y, np.inf).min(1)
+    ok = np.isfinite(yu) & np.isfinite(yl)
+    if ok.sum() < 2:
+        return planar_chart(p, size, margin, "fit")
+    yu = np.interp(xs, xs[ok], yu[ok])
+    yl = np.interp(xs, xs[ok], yl[ok])
+    sigma = samples / 48.0
+    # the centre line: midpoints smoothed over a wider window, weighted by the squared width (the
+    # narrow ends -- a lobe's tip, the apex -- do not swing it)
+    wgt = (yu - yl) ** 2 + 1e-12 * float(np.ptp(p[:, 1])) ** 2
+    c = gaussian_filter1d(wgt * 0.5 * (yu + yl), 4 * sigma, mode="nearest") / \
+        gaussian_filter1d(wgt, 4 * sigma, mode="nearest")
+    need = np.maximum(yu - c, c - yl)
+    floor = float(min_width) * float(need.max())
+    h_raw = np.maximum(need, floor)
+    h = gaussian_filter1d(maximum_filter1d(h_raw, size=int(4 * sigma) | 1, mode="nearest"), sigma,
+                          mode="nearest")
+    h = np.maximum(h, h_raw)
+    h = np.maximum(h, 1e-12)
+    chart = UVChart((0.0, 1.0, 0.0, 1.0), (xs, c, h))
+    chart.bounds = chart_bounds(chart.polygon(p, size), margin, size)
+    return chart

@@ -54,9 +54,10 @@ def test_two_sided_layout(leaf_mesh):
     # UVs: own patch per side, back mirrored in u
     assert m.uvs.min() >= 0 and m.uvs.max() <= 1
     assert np.allclose(m.uvs[S_:, 0], 1 - m.uvs[:S_, 0]) and np.allclose(m.uvs[S_:, 1], m.uvs[:S_, 1])
-    # planar UVs: u increases with x (base -> apex), v with y
+    # envelope chart (the default): u follows x (base -> apex) exactly, v increases with y
     assert np.corrcoef(m.uvs[:S_, 0], m.points[:S_, 0])[0, 1] > 0.999
-    assert np.corrcoef(m.uvs[:S_, 1], m.points[:S_, 1])[0, 1] > 0.999
+    assert np.corrcoef(m.uvs[:S_, 1], m.points[:S_, 1])[0, 1] > 0.95
+    assert m.report["uv_chart"] == "envelope"
     assert m.faces.dtype == np.int32 and m.points.dtype == np.float32
     assert m.front_texture.shape == (128, 128, 4) and m.front_texture.dtype == np.uint8
 
@@ -123,7 +124,8 @@ def test_write_read_textures_roundtrip(leaf_mesh, tmp_path):
 
 
 @pytest.mark.parametrize("bad", [dict(vertex_budget=2), dict(texture_size=4),
-                                 dict(method="poisson"), dict(bpa_radii=()), dict(alpha_threshold=1.5)])
+                                 dict(method="poisson"), dict(bpa_radii=()), dict(alpha_threshold=1.5),
+                                 dict(uv_layout="xatlas"), dict(chart_min_width=0.0)])
 def test_params_validation(leaf, bad):
     cloud, fits = leaf
     with pytest.raises(ParameterError):
@@ -221,3 +223,21 @@ def test_textures_not_mirrored_or_flipped():
     assert (b_in[:, 2] > b_in[:, 1] + 50).mean() > 0.8      # blue on the back
     assert (f_out[:, 1] > f_out[:, 0]).mean() > 0.9          # green at the mirror position
     assert (b_out[:, 1] > b_out[:, 2]).mean() > 0.9
+
+
+def test_planar_chart_uvs_are_linear(leaf):
+    """uv_layout="fit": the planar chart, u and v linear in x and y."""
+    cloud, fits = leaf
+    m = build_template_mesh(cloud, fits, MeshParams(vertex_budget=300, texture_size=64, uv_layout="fit"))
+    S_ = len(m.points) // 2
+    assert m.report["uv_chart"] == "planar" and m.report["uv_interpolation_texels_max"] < 1e-3
+    assert np.corrcoef(m.uvs[:S_, 0], m.points[:S_, 0])[0, 1] > 0.999
+    assert np.corrcoef(m.uvs[:S_, 1], m.points[:S_, 1])[0, 1] > 0.999
+
+
+def test_envelope_chart_covers_more_texels(leaf, leaf_mesh):
+    """The default chart spends more of the texture on the leaf than the planar one."""
+    cloud, fits = leaf
+    flat = build_template_mesh(cloud, fits, MeshParams(vertex_budget=800, texture_size=128, uv_layout="fit"))
+    env = leaf_mesh.report["alpha_coverage_front"]
+    assert env > flat.report["alpha_coverage_front"] + 0.04 and env > 0.75
