@@ -204,7 +204,7 @@ def run_plant(d: Path, work: Path, size: int, pictures: Path | None, tag: str) -
     out = work / name / "plant.usda"
     t0 = time.perf_counter()
     report = convert(d / "point_cloud.ply", out,
-                     ConvertOptions(up=up, root=root_pt, labels=str(gtp), texture_size=1024))
+                     ConvertOptions(up=up, root=root_pt, labels=str(gtp)))
     t_convert = time.perf_counter() - t0
     asset = read_stage(out)
     scene = asset_scene(out, asset)
