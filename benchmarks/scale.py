@@ -34,20 +34,47 @@ sys.path.insert(0, str(ROOT))
 SHARED = ROOT.parent / "shared" / "plants"
 
 _CHILD = r"""
-import json, resource, sys, time, logging
+import json, sys, time, logging
 logging.basicConfig(level=logging.INFO, format="%(message)s", stream=sys.stderr)
-from leaffit_usd.pipeline import convert
+from leaffit_usd import pipeline
 from leaffit_usd.commands.bake import bake
-t0 = time.perf_counter()
-rep = convert(sys.argv[1], sys.argv[2])
-wall = time.perf_counter() - t0
-bake(sys.argv[2], sys.argv[3])
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-rep.get("isolation", {}).pop("classes", None)
-json.dump({"wall_s": wall, "peak_bytes": peak, "cpu_s": time.process_time(), "report": rep},
-          open(sys.argv[4], "w"))
-"""
 
+def _hwm():  # peak resident set size since the last reset (bytes; Linux /proc)
+    for line in open("/proc/self/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) * 1024
+    return 0
+
+def _reset_hwm():
+    try:
+        open("/proc/self/clear_refs", "w").write("5")
+    except OSError:
+        pass
+
+stage_peak = {}
+_stage = pipeline._Timer.stage
+def stage(self, name, what):  # wrap each convert stage: its own peak RSS
+    ctx = _stage(self, name, what)
+    class _C:
+        def __enter__(s):
+            _reset_hwm()
+            return ctx.__enter__()
+        def __exit__(s, *a):
+            stage_peak[name] = _hwm()
+            return ctx.__exit__(*a)
+    return _C()
+pipeline._Timer.stage = stage
+
+t0, c0 = time.perf_counter(), time.process_time()
+rep = pipeline.convert(sys.argv[1], sys.argv[2])
+wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+# resetting VmHWM also resets ru_maxrss: the run's peak is the largest stage peak
+peak = max([_hwm(), *stage_peak.values()])
+bake(sys.argv[2], sys.argv[3])
+rep.get("isolation", {}).pop("classes", None)
+json.dump({"wall_s": wall, "peak_bytes": peak, "cpu_s": cpu, "stage_peak_bytes": stage_peak,
+           "report": rep}, open(sys.argv[4], "w"))
+"""
 
 def _load(name):
     path = SHARED / f"{name}.py"
@@ -57,22 +84,13 @@ def _load(name):
     return mod
 
 
-def _external_python() -> str:
-    for cand in (Path.home() / ".cache/leaffit-plants/heliosvenv/bin/python", Path(sys.executable)):
-        if cand.is_file() and subprocess.run([str(cand), "-c", "import PIL, plyfile, scipy"],
-                                             capture_output=True).returncode == 0:
-            return str(cand)
-    raise SystemExit("the external generator needs pillow and plyfile")
-
-
 def make_external(n: int, cache: Path) -> tuple[Path, Path]:
-    d = cache / f"ext_{n}"
-    if not (d / "index.json").is_file():
-        subprocess.run([_external_python(), str(SHARED / "make_plants.py"), "--out", str(d), "--seed",
-                        "1", "--preset", "paper8", "--count", "1", "--gaussians", str(n), "--quiet"],
-                       check=True)
-    name = json.loads((d / "index.json").read_text())["plants"][0]["name"]
-    return d / name / "point_cloud.ply", d / name / "gt.npz"
+    """The paper8 seed-1 capsicum at ``n`` Gaussians, from ``external_plants``' cache
+    (``$LEAFFIT_EXT_CACHE``; generated once: ~2 min per million Gaussians)."""
+    from benchmarks.external_plants import ensure_set, plants
+
+    d = plants(ensure_set("paper8", 1, gaussians=n, count=1))[0]
+    return d / "point_cloud.ply", d / "gt.npz"
 
 
 def make_samples(n: int, cache: Path) -> tuple[Path, Path]:
@@ -133,11 +151,13 @@ def main(argv=None) -> int:
         row = {"gaussians": n, "gaussians_loaded": rep["counts"]["gaussians_loaded"],
                "wall_s": round(r["wall_s"], 1), "cpu_s": round(r["cpu_s"], 1),
                "peak_gb": round(r["peak_bytes"] / 1e9, 3), "leaves": rep["counts"]["leaves"],
-               "timings": rep["timings"], "shape": err, "generate_s": round(t_gen, 1),
+               "timings": rep["timings"],
+               "stage_peak_gb": {k: round(v / 1e9, 3) for k, v in r["stage_peak_bytes"].items()}, "shape": err, "generate_s": round(t_gen, 1),
                "isolation_removed": rep["isolation"]["removed"]}
         rows.append(row)
-        print(f"{n:>9,d} Gaussians: wall {row['wall_s']:7.1f} s, peak {row['peak_gb']:.2f} GB, "
+        print(f"{n:>9,d} Gaussians: wall {row['wall_s']:7.1f} s, CPU {row['cpu_s']:7.1f} s, peak {row['peak_gb']:.2f} GB, "
               f"{row['leaves']} leaves, stages " + ", ".join(f"{k} {v:.1f}" for k, v in rep["timings"].items())
+              + "; stage peaks GB " + ", ".join(f"{k} {v:.2f}" for k, v in row["stage_peak_gb"].items())
               + ("  Corr %.4f CD %.5f HD %.4f matched %s" % (err.get("corr_l2", np.nan), err.get("chamfer", np.nan),
                                                             err.get("hausdorff", np.nan), err.get("n_matched"))
                  if err else ""), flush=True)

@@ -14,6 +14,12 @@ setting is restored after), so every reduction has one fixed order. The parallel
 is small (the fit's per-step tensors are small; measured in ``benchmarks/batch.py``' notes) and
 ``leaffit-usd batch`` gets it back by converting several captures at once.
 Randomness is seeded explicitly where it exists (``FitParams.seed``, ``SegmentParams.seed``).
+
+The same block also runs numpy's BLAS (OpenBLAS) on one thread (``threadpoolctl``). Not for the
+bytes (OpenBLAS splits a product over its output, not over the summed dimension) but for time:
+the registration's Gauss-Newton products are tall and thin ((16384, 96)^T (16384, 96)), and on a
+busy machine (more runnable threads than cores) OpenBLAS' threads spin waiting for each other:
+measured 10x slower than one thread on the 2-core benchmark machine under load (benchmarks/scale.py).
 """
 from __future__ import annotations
 
@@ -27,9 +33,10 @@ _depth = 0
 
 @contextlib.contextmanager
 def deterministic_torch():
-    """Run the block with one torch intra-op thread (restored after; re-entrant, thread-safe
-    with respect to other users of this context manager)."""
+    """Run the block with one torch intra-op thread and one BLAS thread (both restored after;
+    re-entrant, thread-safe with respect to other users of this context manager)."""
     import torch
+    from threadpoolctl import threadpool_limits
 
     global _depth
     with _lock:
@@ -38,14 +45,17 @@ def deterministic_torch():
             saved = torch.get_num_threads()
             if saved != 1:
                 torch.set_num_threads(1)
+            blas = threadpool_limits(limits=1, user_api="blas")
         _depth += 1
     try:
         yield
     finally:
         with _lock:
             _depth -= 1
-            if outer and saved != 1:
-                torch.set_num_threads(saved)
+            if outer:
+                blas.restore_original_limits()
+                if saved != 1:
+                    torch.set_num_threads(saved)
 
 
 def deterministic(fn):

@@ -97,3 +97,20 @@ def test_torch_numerics_run_single_threaded(monkeypatch):
         assert torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(saved)
+
+
+def test_blas_runs_single_threaded_inside_and_is_restored():
+    """numpy's BLAS runs on one thread inside the block (OpenBLAS' threads spin on a busy
+    machine: the registration's tall-thin products were 10x slower), the caller's setting after."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    np.ones((4, 4)) @ np.ones((4, 4))                       # BLAS loaded
+    with threadpool_limits(limits=2, user_api="blas"):
+        before = [d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"]
+        assert before and set(before) == {2}
+        with deterministic_torch():
+            with deterministic_torch():
+                inner = [d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"]
+            assert set(inner) == {1}
+            assert {d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"} == {1}
+        assert [d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"] == before
