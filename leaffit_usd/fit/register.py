@@ -118,7 +118,9 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
         raise ParameterError("seg.labels", f"{len(cloud_working)} labels (one per Gaussian)",
                              len(seg.labels))
     means = np.asarray(cloud_working.means, np.float64)
-    covs = cloud_working.covariances().astype(np.float64)
+    # covariances only of the Gaussians the optimisation renders (``_subset``): all N of them
+    # were ~150 B per Gaussian of transient memory (0.75 GB at 5M)
+    covs = _Covariances(cloud_working)
     opac = cloud_working.opacities.astype(np.float64)
 
     leaves = [_prepare_leaf(l, means, seg, params.denoise, params.leaf_gaussians, params.seed)
@@ -409,7 +411,18 @@ def _empty_fits(params: FitParams) -> LeafFits:
 # optimisation
 # ---------------------------------------------------------------------------------------------
 
-def _subset(lf: _Leaf, n: int, covs_working: np.ndarray, opac: np.ndarray):
+class _Covariances:
+    """``covs[idx]`` : (len(idx), 3, 3) float64 covariances of the Gaussians ``idx`` of a cloud
+    (working frame), computed on demand; equal to ``cloud.covariances()[idx]``."""
+
+    def __init__(self, cloud: GaussianCloud):
+        self.cloud = cloud
+
+    def __getitem__(self, idx) -> np.ndarray:
+        return self.cloud.subset(np.asarray(idx, np.int64)).covariances().astype(np.float64)
+
+
+def _subset(lf: _Leaf, n: int, covs_working: "_Covariances", opac: np.ndarray):
     """At most n of the leaf's Gaussians (FPS), template units, leaf local frame: centres (n, 3),
     covariances (n, 3, 3), opacities (n,). The covariances are the Gaussians' own (widening
     them to close the gaps of the subset blurs the depth maps, and biases them where the blade
@@ -551,6 +564,7 @@ def _refine(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray,
     out = np.array(q0, np.float64)
     A_lm = mls_weights(p, np.stack([np.zeros(3), T.apex]), params.sigma, params.reg)   # (2, K)
     H_lm = params.landmark_weight * A_lm.T @ A_lm
+    H_tt = A.T @ A / len(X)                  # the template's own term: fixed for every leaf
     for b, lf in enumerate(leaves):
         g_lm = params.landmark_weight * A_lm.T @ np.stack([np.zeros(3), lf.apex / lf.scale])
         Y = lf.local / lf.scale
@@ -562,7 +576,7 @@ def _refine(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray,
             ia = tree.query(Xd)[1]
             ib = cKDTree(Xd).query(Y)[1]
             Ab = A[ib]
-            H_pt = A.T @ A / len(X) + Ab.T @ Ab / len(Y) + H_lm           # (K, K), per coordinate
+            H_pt = H_tt + Ab.T @ Ab / len(Y) + H_lm                       # (K, K), per coordinate
             g_pt = A.T @ Y[ia] / len(X) + Ab.T @ Y / len(Y) + g_lm        # (K, 3)
             J = (A[:, :, None] * N[ia][:, None, :]).reshape(len(X), 3 * K)  # row a: n_a^T A_a
             r = (N[ia] * Y[ia]).sum(1)
