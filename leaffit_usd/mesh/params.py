@@ -36,6 +36,9 @@ class MeshParams:
     lod_vertices : vertex budgets of the coarser levels of detail (per side)
     alpha_threshold : splat coverage at which the cut-out edge lies
     min_coverage : smallest fraction of the sheet's silhouette a side's splats must cover
+    bake_gaussians : the bake renders at most this many of the template's Gaussians (an even
+        subset, widened to cover for the rest; 0 = all): dense captures bake in bounded time
+        (:func:`leaffit_usd.mesh.texture_bake.bake_subset`)
     """
 
     vertex_budget: int = 2048
@@ -51,6 +54,7 @@ class MeshParams:
     lod_vertices: tuple = (512, 128)
     alpha_threshold: float = 0.5
     min_coverage: float = 0.6
+    bake_gaussians: int = 65536
 
     def validate(self) -> None:
         if not isinstance(self.vertex_budget, (int, np.integer)) or self.vertex_budget < 3:
@@ -66,6 +70,9 @@ class MeshParams:
             raise ParameterError("uv_layout", ", ".join(UV_LAYOUTS), self.uv_layout)
         if not isinstance(self.supersample, (int, np.integer)) or not 1 <= self.supersample <= 4:
             raise ParameterError("supersample", "an integer in 1..4", self.supersample)
+        if not isinstance(self.bake_gaussians, (int, np.integer)) or isinstance(self.bake_gaussians, bool) \
+                or self.bake_gaussians < 0:
+            raise ParameterError("bake_gaussians", "an integer >= 0 (0 = all)", self.bake_gaussians)
         if not all(isinstance(n, (int, np.integer)) and n >= 8 for n in tuple(self.lod_vertices)):
             raise ParameterError("lod_vertices", "integers >= 8", self.lod_vertices)
         for name, lo, hi in (("alpha", 0.5, 100.0), ("texture_margin", 0.0, 0.45),

@@ -120,7 +120,7 @@ def build_template_mesh(cloud_working, fits, params: MeshParams | None = None) -
         chart = planar_chart(P[:, :2], size, params.texture_margin, params.uv_layout)
     front, back, tinfo = bake_textures(cloud_working, fits, P, Fs, P[outer, :2], chart, size,
                                        params.alpha_threshold, params.min_coverage,
-                                       int(params.supersample))
+                                       int(params.supersample), int(params.bake_gaussians))
     timings["bake"] = time.perf_counter() - t0
 
     lod0 = two_sided(P, Fs, chart)
