@@ -116,7 +116,19 @@ def shape_error(gt_path: Path, leaves_npz: Path) -> dict:
         gt_path = tmp
     r = ev.evaluate_files(str(gt_path), str(leaves_npz))
     keep = {k: r[k] for k in r if isinstance(r[k], (int, float)) and not isinstance(r[k], bool)}
+    keep["per_leaf"] = [{k: (round(v, 5) if isinstance(v, float) else v) for k, v in lf.items()}
+                        for lf in r.get("leaves", [])]
     return keep
+
+
+def _up_error(up, gt_path: Path):
+    """Angle (degrees) between the conversion's up axis and the GT's (file frame), or None."""
+    g = np.load(gt_path)
+    if "up" not in g.files:
+        return None
+    a, b = np.asarray(up, np.float64), np.asarray(g["up"], np.float64)
+    c = float(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)))
+    return round(float(np.degrees(np.arccos(np.clip(c, -1, 1)))), 2)
 
 
 def main(argv=None) -> int:
@@ -153,7 +165,13 @@ def main(argv=None) -> int:
                "peak_gb": round(r["peak_bytes"] / 1e9, 3), "leaves": rep["counts"]["leaves"],
                "timings": rep["timings"],
                "stage_peak_gb": {k: round(v / 1e9, 3) for k, v in r["stage_peak_bytes"].items()}, "shape": err, "generate_s": round(t_gen, 1),
-               "isolation_removed": rep["isolation"]["removed"]}
+               "isolation_removed": rep["isolation"]["removed"],
+               "fit_error_per_leaf": rep["fit"]["per_leaf"],
+               "rigid_fallback_leaves": rep["counts"]["rigid_fallback_leaves"],
+               "up_error_deg": _up_error(rep["frame"]["up"], gt),
+               "bake": {k: rep["mesh_report"].get(k) for k in
+                        ("template_gaussians", "bake_gaussians", "bake_widen")},
+               "mesh_timings": rep["mesh_report"].get("timings")}
         rows.append(row)
         print(f"{n:>9,d} Gaussians: wall {row['wall_s']:7.1f} s, CPU {row['cpu_s']:7.1f} s, peak {row['peak_gb']:.2f} GB, "
               f"{row['leaves']} leaves, stages " + ", ".join(f"{k} {v:.1f}" for k, v in rep["timings"].items())
