@@ -267,3 +267,25 @@ def test_leaf_gaussian_cap_keeps_the_fit(plant, fits):
     assert len(cut) > 600 and len(full & cut) > 0.95 * len(full)
     with pytest.raises(ParameterError):
         fit_leaves(plant.cloud, plant.seg, FitParams(leaf_gaussians=-1))
+
+
+def test_leaf_gaussian_cap_bounds_what_the_fit_reads(plant, monkeypatch):
+    """The cap holds: denoising (and so the frame, the refinement and the error) sees at most
+    ``leaf_gaussians`` of a leaf, and covariances are computed only for the Gaussians rendered
+    (the cost of a 5M-Gaussian capture's fit must not grow with its leaves)."""
+    import leaffit_usd.fit.register as reg
+
+    seen, cov_rows = [], []
+    real_dn, real_cov = reg.denoise_leaf, reg._Covariances.__getitem__
+    monkeypatch.setattr(reg, "denoise_leaf", lambda pts, p: seen.append(len(pts)) or real_dn(pts, p))
+
+    def spy_cov(self, idx):
+        out = real_cov(self, idx)
+        cov_rows.append(len(out))
+        assert np.array_equal(out, self.cloud.covariances()[np.asarray(idx)].astype(np.float64))
+        return out
+
+    monkeypatch.setattr(reg._Covariances, "__getitem__", spy_cov)
+    fit_leaves(plant.cloud, plant.seg, FitParams(steps=1, refine=0, leaf_gaussians=500, max_points=64))
+    assert len(seen) == plant.seg.n_leaves and max(seen) == 500
+    assert cov_rows and max(cov_rows) <= 64
