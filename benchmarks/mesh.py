@@ -118,6 +118,7 @@ def run_plant(name: str, size: int, methods, write_example: bool):
                    boundary_rel=r["boundary_length_rel"], min_angle_p5=r["min_angle_deg_p5"],
                    uv_stretch_max=r["uv_stretch_max"],
                    cov_front=r["coverage_front"], cov_back=r["coverage_back"],
+                   texture_coverage=r["alpha_coverage_front"], uv_chart=r.get("uv_chart"),
                    texture_fallback=r["texture_fallback"], leaf_length=L,
                    fallback_reasons=r.get("fallback_reasons", []),
                    t_surface=r["timings"]["surface"], t_bake=r["timings"]["bake"], t_total=dt,
@@ -176,16 +177,17 @@ def main(argv=None) -> int:
         if args.stem:
             stems.append(run_stem(name))
     hdr = ("plant", "method", "V_sheet", "F_sheet", "disk", "holes b/a", "pts mean/max",
-           "gs mean/p95", "GT acc mean/max", "GT comp mean/p99", "cov f/b", "time s")
+           "gs mean/p95", "GT acc mean/max", "GT comp mean/p99", "cov f/b", "tex cov", "time s")
     print(" | ".join(hdr))
     for r in rows:
-        print(f"{r['plant']}:{r['template']} | {r['method']}{'' if r['method'] == r['requested'] else '*'} | "
+        print(f"{r['plant']}:{r['template']} | {r['method']}{'' if r['method'].split('+')[0] == r['requested'] else '*'} | "
               f"{r['sheet_vertices']} | {r['sheet_faces']} | {r['is_disk']} | "
               f"{r['holes_before']}/{r['holes_after']} | {r['pts_mean']:.4f}/{r['pts_max']:.4f} | "
               f"{r['gs_mean']:.4f}/{r['gs_p95']:.4f} | {r['gt_acc_mean']:.4f}/{r['gt_acc_max']:.4f} | "
               f"{r['gt_comp_mean']:.4f}/{r['gt_comp_p99']:.4f} | "
-              f"{r['cov_front']:.3f}/{r['cov_back']:.3f} | {r['t_total']:.1f}")
-    print("(distances relative to the template leaf's length; * = fell back from the requested method)")
+              f"{r['cov_front']:.3f}/{r['cov_back']:.3f} | {r['texture_coverage']:.3f} | {r['t_total']:.1f}")
+    print("(distances relative to the template leaf's length; * = fell back from the requested method; "
+          "cov = splat coverage of the sheet; tex cov = texels of the front texture with leaf, alpha > 0.5)")
     for s in stems:
         print(s)
     RESULTS.mkdir(parents=True, exist_ok=True)

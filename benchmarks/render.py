@@ -7,11 +7,13 @@ ground-truth labels, up axis and root (so the asset is judged alone, not the seg
 1. ``convert`` (the whole pipeline, default parameters) writes the USD asset;
 2. the input Gaussians are rendered with the project's splat renderer
    (:func:`leaffit_usd.splats.render.render_orthographic_np`), and the asset -- the evaluated
-   leaves textured with the written PNG textures and their alpha cut-out, and the stem with its
+   leaves textured with the written PNG textures, their alpha cut-out and the per-leaf tint the
+   material multiplies in (linear RGB), and the stem with its
    vertex colours -- with the project's triangle rasteriser (:mod:`leaffit_usd.edit.raster`),
    orthographic, 8 azimuths 45 degrees apart at 20 degrees elevation, same bounds, unlit (DC
    colours against texture colours);
-3. per plant: silhouette IoU (input alpha > 0.5 vs asset coverage; min and mean over views),
+3. per plant: silhouette IoU (input alpha > 0.5 vs asset coverage; min and mean over views;
+   the input without its floaters and scene Gaussians, which conversion removes on purpose),
    PSNR and SSIM (Gaussian window, sigma 1.5) inside the union of both silhouettes; and the
    surface errors against ground truth with ``../shared/plants/eval_deform.py`` (leaves: Corr-l2,
    HD, outline error OE; stem: ``evaluate_stem``'s mean pred->GT distance and HD), x10 of
@@ -127,6 +129,11 @@ def render_asset(scene, R, centre, size, bounds):
             rr = np.clip(((1 - uv[sel, 1]) * H).astype(int), 0, H - 1)
             col[sel] = tex[rr, cc, :3]
             alpha[sel] = tex[rr, cc, 3]
+        if scene.get("tints") is not None:   # the material's per-leaf gain, in linear RGB
+            g = scene["tints"][scene["face_leaf"][f[is_leaf]]]
+            lin = np.where(col <= 0.04045, col / 12.92, ((col + 0.055) / 1.055) ** 2.4) * g
+            lin = np.clip(lin, 0.0, 1.0)
+            col = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
         out[is_leaf] = col
         keep[np.flatnonzero(is_leaf)[alpha < 0.5]] = False   # the alpha cut-out
     st = ~is_leaf
@@ -188,11 +195,14 @@ def asset_scene(stage_path: Path, asset) -> dict:
                 uvs=np.vstack([np.tile(np.asarray(asset.template_uvs, np.float64), (L, 1)),
                                np.zeros((len(sv), 2))]),
                 colors=np.vstack([np.zeros((n_leaf_v, 3)), colors]),
-                textures=tex, baked=baked, V=V)
+                textures=tex, baked=baked, V=V,
+                face_leaf=np.r_[lf[:, 0] // V, np.zeros(len(sf), np.int64)],
+                tints=None if asset.tints is None else np.asarray(asset.tints, np.float64))
 
 
 # ---- one plant -----------------------------------------------------------------------------------
-def run_plant(d: Path, work: Path, size: int, pictures: Path | None, tag: str) -> dict:
+def run_plant(d: Path, work: Path, size: int, pictures: Path | None, tag: str,
+              reuse: bool = False) -> dict:
     from leaffit_usd.pipeline import ConvertOptions, convert
     from leaffit_usd.splats import load_cloud
     from leaffit_usd.usd.reader import read_stage
@@ -202,9 +212,14 @@ def run_plant(d: Path, work: Path, size: int, pictures: Path | None, tag: str) -
     with np.load(gtp) as z:
         up, root_pt, H = np.asarray(z["up"], float), np.asarray(z["root"], float), float(z["plant_height"])
     out = work / name / "plant.usda"
+    saved = work / name / "convert_report.json"
     t0 = time.perf_counter()
-    report = convert(d / "point_cloud.ply", out,
-                     ConvertOptions(up=up, root=root_pt, labels=str(gtp)))
+    if reuse and out.is_file() and saved.is_file():   # --reuse: the stage of an earlier run
+        report = json.loads(saved.read_text())
+    else:
+        report = convert(d / "point_cloud.ply", out,
+                         ConvertOptions(up=up, root=root_pt, labels=str(gtp)))
+        saved.write_text(json.dumps(report, default=str))
     t_convert = time.perf_counter() - t0
     asset = read_stage(out)
     scene = asset_scene(out, asset)
@@ -232,6 +247,9 @@ def run_plant(d: Path, work: Path, size: int, pictures: Path | None, tag: str) -
     with np.load(gtp) as z:
         lab = np.asarray(z["labels"])[np.asarray(cloud.file_index)]
     plant_pts = pts[lab >= 0]
+    # the input as the asset should show it: the plant's Gaussians (floaters, label -1, and
+    # scene clutter, -2, are what conversion removes on purpose)
+    plant_cloud = cloud.subset(np.flatnonzero(lab >= 0))
     centre = 0.5 * (plant_pts.min(0) + plant_pts.max(0))
     ious, psnrs, ssims = [], [], []
     for v in range(N_VIEWS):
@@ -240,7 +258,7 @@ def run_plant(d: Path, work: Path, size: int, pictures: Path | None, tag: str) -
 
         q = (plant_pts - centre) @ R.T
         bounds = fit_bounds(q, size, size, 0.05)
-        img_in, m_in = render_input(cloud, R, centre, size, bounds)
+        img_in, m_in = render_input(plant_cloud, R, centre, size, bounds)
         img_as, m_as = render_asset(scene, R, centre, size, bounds)
         union = m_in | m_as
         ious.append(float((m_in & m_as).sum() / max(union.sum(), 1)))
@@ -293,6 +311,8 @@ def main(argv=None) -> int:
     ap.add_argument("--size", type=int, default=384, help="render size in pixels (384)")
     ap.add_argument("--work", default=None, help="folder for plants and outputs (default: a temp dir)")
     ap.add_argument("--pictures", default=None, help="write input | asset PNGs here")
+    ap.add_argument("--reuse", action="store_true",
+                    help="render the stages an earlier run left in --work instead of converting again")
     ap.add_argument("--out", default=str(RESULTS / "render.json"))
     args = ap.parse_args(argv)
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="leaffit_render_"))
@@ -317,7 +337,7 @@ def main(argv=None) -> int:
     rows = []
     for tag, d in plants:
         row = run_plant(d, work / "out" / tag, args.size,
-                        Path(args.pictures) if args.pictures else None, tag)
+                        Path(args.pictures) if args.pictures else None, tag, args.reuse)
         rows.append(row)
         print(f"{tag} {d.name}: IoU min {row['iou_min']:.3f}, PSNR {row['psnr']:.2f}, SSIM {row['ssim']:.3f}, "
               f"stem Corr {row.get('stem_corr', float('nan')):.4f} HD {row.get('stem_hd', float('nan')):.4f}, "

@@ -10,7 +10,7 @@ import numpy as np
 from scipy.spatial import Delaunay
 
 from leaffit_usd.fit.result import LeafFits
-from leaffit_usd.mesh.result import Stem, TemplateMesh
+from leaffit_usd.mesh.result import Stem, TemplateLOD, TemplateMesh
 from leaffit_usd.geometry.quaternion import quat_to_matrix
 from leaffit_usd.splats.frame import Frame
 
@@ -85,3 +85,18 @@ def frame() -> Frame:
     """Input frame: up +Y, root at (1, 2, 3), plant 2.5 units tall."""
     pts = np.array([[1.0, 2.0, 3.0], [1.0, 4.5, 3.0]])
     return Frame.from_root_up(pts, pts[0], np.array([0.0, 1.0, 0.0]))
+
+
+def coarser_template(t: TemplateMesh, n: int) -> TemplateLOD:
+    """A coarser two-sided template: the first n sheet vertices, re-triangulated."""
+    sheet = t.sheet_points[:n]
+    f = Delaunay(sheet[:, :2]).simplices.astype(np.int64)
+    a, b, c = (sheet[f[:, i], :2] for i in range(3))
+    cw = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0] < 0
+    f[cw] = f[cw][:, ::-1]
+    S = len(t.sheet_points)
+    return TemplateLOD(points=np.concatenate([sheet, sheet]),
+                       faces=np.concatenate([f, f[:, ::-1] + n]).astype(np.int32),
+                       normals=np.concatenate([t.normals[:n], t.normals[S:S + n]]),
+                       uvs=np.concatenate([t.uvs[:n], t.uvs[S:S + n]]),
+                       side=np.concatenate([np.zeros(n, np.uint8), np.ones(n, np.uint8)]))

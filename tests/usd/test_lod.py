@@ -8,29 +8,12 @@ import pytest
 sys.path.insert(0, str(Path(__file__).parent))
 import synthetic as syn  # noqa: E402
 
-from leaffit_usd.mesh.result import StemMesh, TemplateLOD  # noqa: E402
+from leaffit_usd.mesh.result import StemMesh  # noqa: E402
 from leaffit_usd.runtime.evaluator import asset_leaves  # noqa: E402
 from leaffit_usd.usd import writer as W  # noqa: E402
 from leaffit_usd.usd.assemble import asset_from_results  # noqa: E402
 from leaffit_usd.usd.reader import read_stage, select_representation, select_variant  # noqa: E402
 from leaffit_usd.usd.validate import validate_file  # noqa: E402
-
-
-def _coarser(t, n):
-    """A coarser two-sided template: the first n sheet vertices, re-triangulated."""
-    from scipy.spatial import Delaunay
-
-    sheet = t.sheet_points[:n]
-    f = Delaunay(sheet[:, :2]).simplices.astype(np.int64)
-    a, b, c = (sheet[f[:, i], :2] for i in range(3))
-    cw = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0] < 0
-    f[cw] = f[cw][:, ::-1]
-    S = len(t.sheet_points)
-    return TemplateLOD(points=np.concatenate([sheet, sheet]),
-                       faces=np.concatenate([f, f[:, ::-1] + n]).astype(np.int32),
-                       normals=np.concatenate([t.normals[:n], t.normals[S:S + n]]),
-                       uvs=np.concatenate([t.uvs[:n], t.uvs[S:S + n]]),
-                       side=np.concatenate([np.zeros(n, np.uint8), np.ones(n, np.uint8)]))
 
 
 @pytest.fixture(scope="module")
@@ -39,7 +22,7 @@ def lod_asset():
     f = syn.leaf_fits(t)
     s = syn.stem()
     s.colors = np.tile([0.8, 0.2, 0.1], (len(s.points), 1)).astype(np.float32)
-    t.lods = [_coarser(t, 60), _coarser(t, 20)]
+    t.lods = [syn.coarser_template(t, 60), syn.coarser_template(t, 20)]
     s.lods = [StemMesh(points=s.points[::2].copy(), faces=np.array([[0, 1, 2]], np.int32),
                        colors=s.colors[::2].copy()),
               StemMesh(points=s.points[:3].copy(), faces=np.array([[0, 1, 2]], np.int32), colors=None)]

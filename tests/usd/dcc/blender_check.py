@@ -2,13 +2,16 @@
 
 Run with the bpy venv (``make dcc-check``), NOT under pytest:
 
-    build/dcc-venv/bin/python tests/usd/dcc/blender_check.py plant.usda LEAVES [EXPECTED.json [BAKED.usda]]
+    build/dcc-venv/bin/python tests/usd/dcc/blender_check.py plant.usda LEAVES [EXPECTED.json [BAKED.usda|- [LODS]]]
 
 Checks: the PointInstancer arrives as EXPECTED_LEAVES instances of the template leaf; the
 template mesh has two material slots (front, back) whose node trees read an image texture that
 loaded (non-zero size); the stem mesh exists; instance transforms equal the stage's; and, with
 the 'baked' variant selected (its payload loaded), one mesh per leaf with both materials, no
-instances on top and, for a tinted plant, the tint as a ``displayColor`` attribute.
+instances on top and, for a tinted plant, the tint as a ``displayColor`` attribute; and for each
+level of detail (LODS = 'LODk=PATH#N,...', copies with that ``LOD`` variant selected, from
+make_stage.py) the template leaf arrives from the geometry payload with N vertices, with every
+instance and the stem.
 Prints one line per check; exit 1 on failure.
 """
 import sys
@@ -16,7 +19,8 @@ import sys
 import bpy
 
 
-def main(path: str, expected: int, expect_json: str | None = None, baked_path: str | None = None) -> int:
+def main(path: str, expected: int, expect_json: str | None = None, baked_path: str | None = None,
+         lods: str | None = None) -> int:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     res = bpy.ops.wm.usd_import(filepath=path)
     if "FINISHED" not in res:
@@ -79,10 +83,29 @@ def main(path: str, expected: int, expect_json: str | None = None, baked_path: s
             have = [o.name for o in leaves if "displayColor" in o.data.attributes]
             check(len(have) == len(leaves),
                   f"baked leaves carry the tint as a displayColor attribute ({len(have)}/{len(leaves)})")
+    for item in [x for x in (lods or "").split(",") if x]:
+        name, rest = item.split("=", 1)
+        lod_path, n_points = rest.rsplit("#", 1)
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        res = bpy.ops.wm.usd_import(filepath=lod_path)
+        check("FINISHED" in res, f"{name}: import ({res})")
+        objs = [o for o in bpy.data.objects if o.type == "MESH"]
+        tmpl = next((o for o in objs if "TemplateLeaf" in o.name), None)
+        got = len(tmpl.data.vertices) if tmpl is not None else -1
+        # the template leaf lives in the geometry payload: its points arriving means the
+        # payload was loaded, at this level's resolution
+        check(got == int(n_points), f"{name}: template leaf with {got} vertices from the payload, "
+                                    f"expected {n_points}")
+        dg = bpy.context.evaluated_depsgraph_get()
+        n = sum(1 for inst in dg.object_instances if inst.is_instance and "TemplateLeaf" in inst.object.name)
+        check(n == expected, f"{name}: {n} leaf instances, expected {expected}")
+        stem = next((o for o in objs if "Stem" in o.name), None)
+        check(stem is not None and len(stem.data.vertices) > 0,
+              f"{name}: stem mesh ({len(stem.data.vertices) if stem is not None else 0} vertices)")
     return 0 if ok else 1
 
 
 if __name__ == "__main__":
     argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else sys.argv[1:]
-    sys.exit(main(argv[0], int(argv[1]), argv[2] if len(argv) > 2 else None,
-                  argv[3] if len(argv) > 3 else None))
+    opt = [a if a not in ("", "-") else None for a in argv[2:]] + [None] * 3
+    sys.exit(main(argv[0], int(argv[1]), opt[0], opt[1], opt[2]))
