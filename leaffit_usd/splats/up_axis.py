@@ -72,11 +72,18 @@ def _remove_isolated(p: np.ndarray, k: int = 8, factor: float = 4.0) -> np.ndarr
 
 
 def _plane_basis(u: np.ndarray) -> np.ndarray:
-    """(3, 2) orthonormal basis of the plane perpendicular to unit vector ``u``."""
-    a = np.eye(3)[int(np.argmin(np.abs(u)))]
-    e1 = np.cross(u, a)
-    e1 /= np.linalg.norm(e1)
-    return np.stack([e1, np.cross(u, e1)], axis=1)
+    """(3, 2) orthonormal basis of the plane perpendicular to unit vector ``u``.
+
+    Written out (not np.cross): the up search calls it ~10^3 times.
+    """
+    x, y, z = float(u[0]), float(u[1]), float(u[2])
+    i = int(np.argmin(np.abs(u)))
+    # e1 = u x a with a the axis least aligned with u
+    e1 = (0.0, z, -y) if i == 0 else ((-z, 0.0, x) if i == 1 else (y, -x, 0.0))
+    n1 = np.sqrt(e1[0] ** 2 + e1[1] ** 2 + e1[2] ** 2)
+    e1 = (e1[0] / n1, e1[1] / n1, e1[2] / n1)
+    e2 = (y * e1[2] - z * e1[1], z * e1[0] - x * e1[2], x * e1[1] - y * e1[0])
+    return np.array([[e1[0], e2[0]], [e1[1], e2[1]], [e1[2], e2[2]]])
 
 
 _BANDS = (0.05, 0.10, 0.15, 0.20, 0.25)
@@ -115,40 +122,89 @@ def _root_score(p: np.ndarray, u: np.ndarray) -> tuple[float, np.ndarray]:  # no
     The root estimate is the lowest band's centre at the bottom of the extent.
     """
     normals = p[:, 3:6] if p.shape[1] == 6 else None
-    p = p[:, :3]
-    h = p @ u
-    lo, hi = np.quantile(h, [0.001, 0.999])
+    xyz = p[:, :3]
+    h = xyz @ u
+    lo, hi = _quantiles(h, (0.001, 0.999))
     ext = hi - lo
     if ext <= 0:
-        return np.inf, p.mean(0)
+        return np.inf, xyz.mean(0)
     basis = _plane_basis(u)
-    x = p @ basis
+    x = xyz @ basis  # (M, 2) horizontal coordinates
     canopy = h > lo + 0.3 * ext
-    c = np.median(x[canopy], axis=0) if canopy.sum() >= 10 else np.median(x, axis=0)
-    radius = np.quantile(np.linalg.norm(x - c, axis=1), 0.9)
+    xc = x[canopy] if canopy.sum() >= 10 else x
+    c = _median2(xc)
+    radius = _quantile(np.hypot(x[:, 0] - c[0], x[:, 1] - c[1]), 0.9)
     if radius <= 0:
-        return np.inf, p.mean(0)
+        return np.inf, xyz.mean(0)
+    # the bands are nested: select the widest once, then each band within it
+    wide = h <= lo + _BANDS[-1] * ext
+    order = np.argsort(h[wide], kind="stable")  # each band is a range of this order
+    h_w, x_w = h[wide][order], x[wide][order]
+    n_w = normals[wide][order] if normals is not None else None
+    start = int(np.searchsorted(h_w, lo, "left"))
     widths, centre0, flat = [], None, 0.0
     for f in _BANDS:
-        band = (h >= lo) & (h <= lo + f * ext)
-        if band.sum() < 3:
-            band = h <= np.partition(h, 3)[3]
-        xb = x[band]
-        cb = np.median(xb, axis=0)
+        i0, i1 = start, int(np.searchsorted(h_w, lo + f * ext, "right"))
+        if i1 - i0 < 3:  # too few: the lowest four points (and their ties)
+            i0, i1 = 0, int(np.searchsorted(h_w, h_w[min(3, len(h_w) - 1)], "right"))
+        xb = x_w[i0:i1]
+        cb = _median2(xb)
         if centre0 is None:
             centre0 = cb
-        widths.append(np.quantile(np.linalg.norm(xb - cb, axis=1), 0.9))
+        widths.append(_quantile(np.hypot(xb[:, 0] - cb[0], xb[:, 1] - cb[1]), 0.9))
         if f == _BANDS[1] and len(xb) >= 5:
-            ev = np.linalg.eigvalsh(np.cov(xb.T))
-            flat = 1.0 - np.sqrt(max(ev[0], 0.0) / max(ev[1], 1e-300))
-            if normals is not None:
-                nb = normals[band] @ basis  # (k, 2): a stem's surface normals go all round
-                ev = np.linalg.eigvalsh(nb.T @ nb / len(nb))
-                flat += 1.0 - np.sqrt(max(ev[0], 0.0) / max(ev[1], 1e-300))
-    offset = np.linalg.norm(centre0 - c)
+            flat = _roundness_defect(_cov2(xb))
+            if n_w is not None:
+                nh = n_w[i0:i1] @ basis  # (k, 2): a stem's surface normals go all round
+                flat += _roundness_defect(nh.T @ nh / len(nh))
+    offset = float(np.hypot(*(centre0 - c)))
     score = (np.mean(widths) + _OFFSET_WEIGHT * offset) / radius + _FLAT_WEIGHT * flat
     root = basis @ centre0 + u * lo
     return float(score), root
+
+
+def _quantile(a: np.ndarray, q: float) -> float:
+    """``np.quantile(a, q)`` (linear interpolation) of a 1-D array, with one partition call.
+
+    The up search calls this ~10^4 times on small arrays, where np.quantile's overhead was
+    most of the time.
+    """
+    return float(_quantiles(a, (q,))[0])
+
+
+def _quantiles(a: np.ndarray, qs: tuple[float, ...]) -> np.ndarray:
+    """``np.quantile(a, qs, axis=0)`` (linear interpolation) with one partition call.
+
+    a : (M,) or (M, C); returns (len(qs),) or (len(qs), C).
+    """
+    n = len(a)
+    pos = [q * (n - 1) for q in qs]
+    ks = [int(p_) for p_ in pos]
+    k1s = [min(k + 1, n - 1) for k in ks]
+    part = np.partition(a, sorted(set(ks + k1s)), axis=0)
+    t = np.array([p_ - k for p_, k in zip(pos, ks)])
+    if a.ndim == 2:
+        t = t[:, None]
+    return part[ks] + (part[k1s] - part[ks]) * t
+
+
+def _median2(x: np.ndarray) -> np.ndarray:
+    """(2,) per-column medians of an (M, 2) array."""
+    return _quantiles(x, (0.5,))[0]
+
+
+def _cov2(x: np.ndarray) -> np.ndarray:
+    """(2, 2) sample covariance of an (M, 2) array (``np.cov(x.T)`` without its overhead)."""
+    d = x - x.mean(0)
+    return d.T @ d / max(len(x) - 1, 1)
+
+
+def _roundness_defect(cov: np.ndarray) -> float:
+    """``1 - sqrt(l_min / l_max)`` of a symmetric 2x2 matrix (0 = round, 1 = a line)."""
+    a, b, d = float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
+    mid, rad = 0.5 * (a + d), np.hypot(0.5 * (a - d), b)
+    l_min, l_max = max(mid - rad, 0.0), mid + rad
+    return 1.0 - np.sqrt(l_min / max(l_max, 1e-300))
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:
