@@ -133,11 +133,11 @@ def build_surface_graph(points: np.ndarray, normals: np.ndarray | None, include:
     kq = int(min(64, m))
     d, nb = cKDTree(x).query(x, k=kq, workers=-1)
     d, nb = d.reshape(m, kq), nb.reshape(m, kq)
-    nrm = _pca_normals(x, nb[:, :min(12, kq)])
-    if normals is not None:
-        given = np.asarray(normals, np.float64)[dom]
-        ok = np.isfinite(given).all(1)
-        nrm[ok] = given[ok]
+    given = np.asarray(normals, np.float64)[dom] if normals is not None else np.full((m, 3), np.nan)
+    nrm = given.copy()
+    unknown = ~np.isfinite(given).all(1)
+    if unknown.any():  # not a flat Gaussian (or no normals given): local PCA
+        nrm[unknown] = _pca_normals(x, nb[unknown, :min(12, kq)])
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
     spacing = d[:, min(6, kq - 1)]
     k = int(min(params.graph_k, kq - 1))
@@ -181,8 +181,13 @@ def _tensor_ratio_within(points, normals, queries, radius, k=64, known=None) -> 
     else:
         d, nb = known
     w = (d <= radius).astype(np.float64)
-    nn = normals[nb]
-    t = np.einsum("mk,mki,mkj->mij", w, nn, nn) / np.maximum(w.sum(1), 1)[:, None, None]
+    # the six distinct entries of each point's n n^T, summed over the neighbours in one product
+    iu = np.triu_indices(3)
+    outer = (normals[:, :, None] * normals[:, None, :])[:, iu[0], iu[1]]  # (P, 6)
+    six = np.einsum("mk,mkc->mc", w, outer[nb]) / np.maximum(w.sum(1), 1)[:, None]
+    t = np.empty((len(six), 3, 3))
+    t[:, iu[0], iu[1]] = six
+    t[:, iu[1], iu[0]] = six
     ev = np.linalg.eigvalsh(t)
     return ev[:, 1] / np.maximum(ev[:, 2], 1e-12)
 
@@ -269,16 +274,18 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
     below ``min_size``, assigned to the nearest leaf later).
     """
     k = len(nodes)
-    local = -np.ones(graph.shape[0], np.int64)
-    local[nodes] = np.arange(k)
+    # the piece's own graph as Python lists: the sweep below visits every point once, and
+    # numpy calls on a handful of neighbours each cost more than the work they do
+    sub = graph[nodes][:, nodes].tocsr()
+    indptr, indices = sub.indptr.tolist(), sub.indices.tolist()
     order = np.argsort(-dist, kind="stable")
-    below_sorted = np.sort(dist)
+    rank_below = np.searchsorted(np.sort(dist), dist).tolist()  # points below each point's level
     nn = np.einsum("ki,kj->kij", normals[nodes], normals[nodes])
-    parent = np.arange(k)
+    parent = list(range(k))
     free: dict = {}
     tensor: dict = {}
     junction: dict = {}
-    seen = np.zeros(k, bool)
+    seen = [False] * k
     leaves, rest = [], []
 
     def find(x):
@@ -295,13 +302,10 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
         leaves.append(np.asarray(free[x]))
         free[x], tensor[x] = [], np.zeros((3, 3))
 
-    indptr, indices = graph.indptr, graph.indices
     for v in order.tolist():
         seen[v] = True
         free[v], tensor[v], junction[v] = [v], nn[v].copy(), False
-        nb = local[indices[indptr[nodes[v]]:indptr[nodes[v] + 1]]]
-        nb = nb[nb >= 0]
-        for r in sorted({find(u) for u in nb[seen[nb]].tolist()} - {v}):
+        for r in sorted({find(u) for u in indices[indptr[v]:indptr[v + 1]] if seen[u]} - {v}):
             a = find(v)
             if a == r:
                 continue
@@ -310,7 +314,7 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
                 if ta != tr:  # a sheet meets a tube: the sheet is a leaf
                     freeze(r if ta else a)
                 elif (min(len(free[a]), len(free[r])) >= PALM_BALANCE * max(len(free[a]), len(free[r]))
-                      and int(np.searchsorted(below_sorted, dist[v])) < params.palm_fraction * (
+                      and rank_below[v] < params.palm_fraction * (
                           len(free[a]) + len(free[r]))):  # met at their bases: two leaves
                     for x in (a, r):  # a junction met again is leftover, not a leaf
                         if junction[x]:
