@@ -175,19 +175,21 @@ def _tensor_ratio_within(points, normals, queries, radius, k=64, known=None) -> 
     """(Q,) second / first eigenvalue of ``mean n n^T`` over the (up to ``k`` nearest) ``points``
     within ``radius`` of each of ``queries`` ((Q, 3)); ``known`` = (dists, neighbours) when the
     neighbours are already at hand."""
+    q = len(queries)
     if known is None:
-        d, nb = cKDTree(points).query(queries, k=int(min(k, len(points))), workers=-1)
-        d, nb = d.reshape(len(queries), -1), nb.reshape(len(queries), -1)
+        d, nb = cKDTree(points).query(queries, k=int(min(k, len(points))), distance_upper_bound=radius,
+                                      workers=-1)
+        d, nb = d.reshape(q, -1), nb.reshape(q, -1)
     else:
         d, nb = known
-    w = (d <= radius).astype(np.float64)
-    # the six distinct entries of each point's n n^T, summed over the neighbours in one product
+    rows, cols = np.nonzero(d <= radius)
+    j = nb[rows, cols]
     iu = np.triu_indices(3)
-    outer = (normals[:, :, None] * normals[:, None, :])[:, iu[0], iu[1]]  # (P, 6)
-    six = np.einsum("mk,mkc->mc", w, outer[nb]) / np.maximum(w.sum(1), 1)[:, None]
-    t = np.empty((len(six), 3, 3))
-    t[:, iu[0], iu[1]] = six
-    t[:, iu[1], iu[0]] = six
+    count = np.maximum(np.bincount(rows, minlength=q), 1)
+    t = np.empty((q, 3, 3))
+    for a, b in zip(*iu):  # the six distinct entries of the summed n n^T
+        t[:, a, b] = t[:, b, a] = np.bincount(rows, weights=normals[j, a] * normals[j, b],
+                                              minlength=q) / count
     ev = np.linalg.eigvalsh(t)
     return ev[:, 1] / np.maximum(ev[:, 2], 1e-12)
 
@@ -280,10 +282,9 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
     indptr, indices = sub.indptr.tolist(), sub.indices.tolist()
     order = np.argsort(-dist, kind="stable")
     rank_below = np.searchsorted(np.sort(dist), dist).tolist()  # points below each point's level
-    nn = np.einsum("ki,kj->kij", normals[nodes], normals[nodes])
+    nrm = normals[nodes]
     parent = list(range(k))
     free: dict = {}
-    tensor: dict = {}
     junction: dict = {}
     seen = [False] * k
     leaves, rest = [], []
@@ -294,17 +295,18 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
             x = parent[x]
         return x
 
-    def is_tube(x):
-        ev = np.linalg.eigvalsh(tensor[x] / len(free[x]))
+    def is_tube(x):  # the normal tensor of the branch's free points (rarely asked: only
+        n = nrm[free[x]]  # when two branches of leaf size meet)
+        ev = np.linalg.eigvalsh(n.T @ n / len(n))
         return ev[1] > params.tube_ratio * max(ev[2], 1e-12)
 
     def freeze(x):
         leaves.append(np.asarray(free[x]))
-        free[x], tensor[x] = [], np.zeros((3, 3))
+        free[x] = []
 
     for v in order.tolist():
         seen[v] = True
-        free[v], tensor[v], junction[v] = [v], nn[v].copy(), False
+        free[v], junction[v] = [v], False
         for r in sorted({find(u) for u in indices[indptr[v]:indptr[v + 1]] if seen[u]} - {v}):
             a = find(v)
             if a == r:
@@ -319,7 +321,7 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
                     for x in (a, r):  # a junction met again is leftover, not a leaf
                         if junction[x]:
                             rest.extend(free[x])
-                            free[x], tensor[x] = [], np.zeros((3, 3))
+                            free[x] = []
                         else:
                             freeze(x)
                     junction[a] = junction[r] = True
@@ -330,8 +332,7 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
                 len(free[a]) >= min_size and not junction[a])
             parent[r] = a
             free[a].extend(free[r])
-            tensor[a] = tensor[a] + tensor[r]
-            del free[r], tensor[r], junction[r]
+            del free[r], junction[r]
     for x, f in free.items():
         (leaves.append(np.asarray(f)) if len(f) >= min_size and not junction[x] else rest.extend(f))
     return [nodes[x] for x in leaves], nodes[np.asarray(rest, np.int64)]
