@@ -46,7 +46,7 @@ class MainBlob:
             sidx = np.arange(n)
         s = p[sidx]
         self.tree = cKDTree(s)
-        d, nb = self.tree.query(s, k=min(_ROOT_GRAPH_K + 1, len(s)))
+        d, nb = self.tree.query(s, k=min(_ROOT_GRAPH_K + 1, len(s)), workers=-1)
         self.radius = 4.0 * float(np.median(d[:, min(4, d.shape[1] - 1)]))
         if self.radius <= 0:
             self.trivial = True

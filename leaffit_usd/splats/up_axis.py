@@ -13,7 +13,7 @@ import numpy as np
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.geometry.outliers import inlier_mask
 
-_UP_SAMPLE = 40_000        # points used by the up estimator (deterministic subsample)
+_UP_SAMPLE = 20_000       # points used by the up estimator (deterministic subsample)
 LOW_UP_CONFIDENCE = 0.35  # below this, estimate_up was wrong in some benchmark runs (benchmarks/up_axis.py)
 
 
@@ -91,7 +91,7 @@ _OFFSET_WEIGHT = 0.1
 _FLAT_WEIGHT = 0.05
 _CANOPY_CHECK_DEG = 40.0
 _COARSE_DIRS = 300      # directions of the coarse search over the sphere
-_COARSE_POINTS = 4000   # points of the coarse search
+_COARSE_POINTS = 2000   # points of the coarse search
 _STARTS = 5             # distinct coarse minima refined (random coarse sample)
 _VOXEL_STARTS = 3       # distinct coarse minima refined (spatially even coarse sample)
 
@@ -242,10 +242,10 @@ def estimate_up_with_confidence(points: np.ndarray, normals: np.ndarray | None =
     centre, while leaves spread wide above. :func:`_root_score` measures this for a direction
     (lower is better). Principal axes are not reliable candidates (an asymmetric plant's axis is
     often 20-30 degrees off every principal axis and the score is sharp), so the score is
-    evaluated on 300 directions spread over the sphere on two 4k-point subsamples (a random one
+    evaluated on 300 directions spread over the sphere on two 2k-point subsamples (a random one
     and a spatially even one, which keeps a thin stem's points); the best distinct minima
     (> 30 degrees apart; five and three) are refined by a pattern search on the sphere (cones of
-    12 and 6 degrees), re-scored on a 40k-point random subsample, and the best is refined there
+    12 and 6 degrees), re-scored on a 20k-point random subsample, and the best is refined there
     (cones of 3 and 1.5 degrees).
     ``confidence = 1 - best / best_elsewhere`` with ``best_elsewhere`` the best refined minimum
     more than 45 degrees away (0 = ambiguous; below ``LOW_UP_CONFIDENCE`` check the result).
