@@ -397,7 +397,23 @@ def find_leaves(g: SurfaceGraph, sheet: csr_matrix, stem: np.ndarray, d_root: np
         dl, _, src = dijkstra(gb, indices=seeds, min_only=True, return_predecessors=True)
         ok = np.isfinite(dl[rest_nodes])
         labels[rest_nodes[ok]] = labels[src[rest_nodes[ok]]]
+    _claim_loose_sheet(g, labels, stem)
     return BladeLeaves(labels=labels, was_split=np.asarray([s for _, s in keep], bool), stem=stem)
+
+
+def _claim_loose_sheet(g: SurfaceGraph, labels: np.ndarray, stem: np.ndarray) -> None:
+    """Non-stem graph points still without a leaf (sheet bits too small to be a leaf, cut off
+    from their blade by the sheet test where a blade folds or curls) join the leaf nearest along
+    the graph through non-stem points. In place. On the samples generator this was most of the
+    leaf points lost to the stem (1.1-1.3 % of all Gaussians, along the whole blade, not at
+    its base); bits that touch only the stem stay stem."""
+    loose = (labels == 0) & ~stem
+    if not loose.any() or not (labels > 0).any():
+        return
+    seeds = np.flatnonzero(labels > 0)
+    dl, _, src = dijkstra(g.subgraph(~stem), indices=seeds, min_only=True, return_predecessors=True)
+    take = loose & np.isfinite(dl)
+    labels[take] = labels[src[take]]
 
 
 def _restrict(graph: csr_matrix, mask: np.ndarray) -> csr_matrix:
