@@ -37,7 +37,10 @@ Steps (working frame: root at the origin, +Z up, plant height 1; radii in those 
    they are two leaves. Lobes of one blade meet above a palm and stay one leaf.
 5. **Tubes that look like sheets**: a thick main stem is flat at ``stalk_radius``; a would-be
    leaf whose normals wrap around (``T``'s eigenvalue ratio over the whole piece above
-   ``tube_ratio``) is a stem piece, not a leaf.
+   ``tube_ratio``) is a stem piece, not a leaf; so is a blade that touches the stem with more
+   than ``STEM_PATCH`` of its points (a leaf touches it only where its stalk enters: a patch
+   of stem surface is bordered by stem all round). Sheet bits too small to be leaves (a blade
+   cut by the sheet test where it folds) join the nearest leaf through non-stem points.
 6. Leaves are ordered bottom to top by the ``D_r`` of their base; every Gaussian takes the label
    of its nearest domain point; floaters stay unassigned. The rootward tree (for the stem mesh)
    is the graph's shortest-path tree from the root to every leaf tip.
@@ -73,6 +76,8 @@ SPLIT_CONFIDENCE = 0.6   # confidence factor of a leaf cut from a larger blade
 # within twice, and >= ~150 degrees within four times the radius; a leaf blade does not
 TUBE_WIDE = ((2, 0.5), (4, 0.7))
 PALM_BALANCE = 0.2       # leaflets cut apart at their bases are of comparable size (>= 1/5)
+STEM_PATCH = 0.25        # a "blade" touching the stem with more than this fraction of its points
+                         # is a patch of stem surface (leaves touch it with 0.1-6 %, patches 40-60 %)
 ISLAND_GAP = 0.5         # pieces farther than this (plant reach units) from the plant are not it
 #   (a hole in uneven sampling can leave a leaf 0.1-0.3 away from the rest; clutter is the
 #   isolation stage's job)
@@ -363,8 +368,12 @@ def find_leaves(g: SurfaceGraph, sheet: csr_matrix, stem: np.ndarray, d_root: np
     min_size = max(20, int(params.min_leaf_fraction * m))
     link = params.attach_link * float(np.median(g.spacing))
     leaves, split, rest = [], [], []
+    stem = stem.copy()
     for cid in np.flatnonzero(sizes >= min_size):
         members = np.flatnonzero(comp == cid)
+        if attached[members].mean() > STEM_PATCH:  # stem surface the tube test missed
+            stem[members] = True
+            continue
         groups = _attachment_groups(g, members, attached, link)
         if not groups:  # no stalk touches it: grow from its lowest point
             fin = np.where(np.isfinite(d_root[members]), d_root[members], np.inf)
@@ -381,7 +390,6 @@ def find_leaves(g: SurfaceGraph, sheet: csr_matrix, stem: np.ndarray, d_root: np
             leaves += lv
             split += [len(groups) > 1 or len(lv) > 1] * len(lv)
             rest.append(left)
-    stem = stem.copy()
     keep = []
     for lv, sp in zip(leaves, split):
         if normal_tensor_ratio(g.normals[lv]) > params.tube_ratio:  # step 5: a tube, not a leaf
