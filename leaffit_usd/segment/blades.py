@@ -410,11 +410,12 @@ def find_leaves(g: SurfaceGraph, sheet: csr_matrix, stem: np.ndarray, d_root: np
 
 
 def _claim_loose_sheet(g: SurfaceGraph, labels: np.ndarray, stem: np.ndarray) -> None:
-    """Non-stem graph points still without a leaf (sheet bits too small to be a leaf, cut off
-    from their blade by the sheet test where a blade folds or curls) join the leaf nearest along
-    the graph through non-stem points. In place. On the samples generator this was most of the
-    leaf points lost to the stem (1.1-1.3 % of all Gaussians, along the whole blade, not at
-    its base); bits that touch only the stem stay stem."""
+    """Non-stem graph points still without a leaf join the leaf nearest along the graph through
+    non-stem points. In place. These are sheet pieces too small to be leaves: mostly single
+    points whose normal disagrees with all their neighbours' (a round or badly fitted Gaussian),
+    which the sheet test cuts off one by one. On the samples generator they were most of the
+    leaf points lost to the stem (1.1-1.3 % of all Gaussians, all along the blades); bits that
+    touch only the stem stay stem."""
     loose = (labels == 0) & ~stem
     if not loose.any() or not (labels > 0).any():
         return
