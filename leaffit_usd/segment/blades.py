@@ -93,7 +93,8 @@ class SurfaceGraph:
     normals : (M, 3) float64 unit normals (a flat Gaussian's smallest axis, else local PCA)
     spacing : (M,) float64, distance to the 6th nearest domain point (working units)
     graph : (M, M) csr, symmetric, edge lengths (working units)
-    neighbors, dists : (M, K) int64 / float64, Euclidean nearest domain points (self first)
+    neighbors, dists : (M, K) int64 / float64, Euclidean nearest domain points (self first;
+        K = max(12, graph_k + 1))
     """
 
     domain: np.ndarray
@@ -135,7 +136,7 @@ def build_surface_graph(points: np.ndarray, normals: np.ndarray | None, include:
     dom = pool[voxel_subsample(points[pool], params.domain_points)]
     x = points[dom].astype(np.float64)
     m = len(x)
-    kq = int(min(64, m))
+    kq = int(min(max(12, params.graph_k + 1), m))  # the graph's edges, spacing, PCA normals
     d, nb = cKDTree(x).query(x, k=kq, workers=-1)
     d, nb = d.reshape(m, kq), nb.reshape(m, kq)
     given = np.asarray(normals, np.float64)[dom] if normals is not None else np.full((m, 3), np.nan)
@@ -176,17 +177,13 @@ def normal_tensor_ratio(normals: np.ndarray) -> float:
     return float(ev[1] / max(ev[2], 1e-12))
 
 
-def _tensor_ratio_within(points, normals, queries, radius, k=64, known=None) -> np.ndarray:
+def _tensor_ratio_within(points, normals, queries, radius, k=64) -> np.ndarray:
     """(Q,) second / first eigenvalue of ``mean n n^T`` over the (up to ``k`` nearest) ``points``
-    within ``radius`` of each of ``queries`` ((Q, 3)); ``known`` = (dists, neighbours) when the
-    neighbours are already at hand."""
+    within ``radius`` of each of ``queries`` ((Q, 3))."""
     q = len(queries)
-    if known is None:
-        d, nb = cKDTree(points).query(queries, k=int(min(k, len(points))), distance_upper_bound=radius,
-                                      workers=-1)
-        d, nb = d.reshape(q, -1), nb.reshape(q, -1)
-    else:
-        d, nb = known
+    d, nb = cKDTree(points).query(queries, k=int(min(k, len(points))), distance_upper_bound=radius,
+                                  workers=-1)
+    d, nb = d.reshape(q, -1), nb.reshape(q, -1)
     rows, cols = np.nonzero(d <= radius)
     j = nb[rows, cols]
     iu = np.triu_indices(3)
@@ -205,8 +202,7 @@ def tube_mask(g: SurfaceGraph, params) -> np.ndarray:
     ``TUBE_WIDE`` ratios within larger radii (a stem thicker than ``stalk_radius`` is locally
     flat at that radius; the wide tests run on a coarser subsample so that 64 neighbours reach
     that far). Unsmoothed; see :func:`smooth_mask`."""
-    tube = _tensor_ratio_within(g.points, g.normals, g.points, params.stalk_radius,
-                                known=(g.dists, g.neighbors)) > params.stalk_ratio
+    tube = _tensor_ratio_within(g.points, g.normals, g.points, params.stalk_radius) > params.stalk_ratio
     for factor, ratio in TUBE_WIDE:
         coarse = voxel_subsample(g.points, max(64, g.size // (factor * factor)))
         wide = _tensor_ratio_within(g.points[coarse], g.normals[coarse], g.points,
