@@ -11,11 +11,15 @@ from leaffit_usd.commands import _args
 from leaffit_usd.errors import ParameterError
 
 NAME = "segment"
-HELP = "segment a 3DGS plant into leaves and stem (heat geodesics); write labels.npz"
+HELP = "segment a 3DGS plant into leaves (leaflets) and stem; write labels.npz"
 DESCRIPTION = """\
-Automatic leaf instance segmentation (LeafFit, Sec. "Leaf Instance Segmentation"): heat-method
-geodesic distance from the root, leaf apexes as its local maxima, a rootward tree, apexes grouped
-into leaves by the triangle-inequality test, and each leaf cut at its petiole.
+Automatic leaf instance segmentation. The default method (--method blades) tells leaf blades
+(sheets: the Gaussians' normals agree) from the stem, petioles and rachises (tubes: the normals
+turn round) on a surface graph, measures the heat-method geodesic distance from the root, and
+cuts each blade at its stalks and where leaflets meet at their bases. Each leaf gets a
+confidence in [0, 1]. --method apex runs the paper's march (LeafFit, Sec. "Leaf Instance
+Segmentation": apexes as maxima of the root distance, a rootward tree, the triangle-inequality
+grouping, a petiole cut) with our fixes; --paper-rules runs it exactly as published.
 
 The plant is isolated first, as 'convert' does (table, pot, soil, background, floaters; see
 'leaffit-usd isolate'); --keep-scene skips that.
@@ -26,7 +30,8 @@ Output (.npz, one row per Gaussian of the INPUT FILE, in file order):
   isolation     uint8, the isolation class (0 plant, 1 ground, 2 pot, 3 soil, 4 background,
                 5 floater, 255 dropped at load)
   root_index    int, the root Gaussian (file order)
-  apex_indices  int64, every detected apex (file order); apex_labels: its leaf (0 = none)
+  apex_indices  int64, every detected apex (file order; blades: each leaf's tip); apex_labels:
+                its leaf (0 = none)
   leaf_tip, leaf_base   int64 per leaf (file order)
   tree_nodes, tree_parent, tree_leaf   the rootward tree (nodes in file order; parent indexes
                 tree_nodes, -1 at the root; leaf label of each node, 0 = stem)
@@ -36,7 +41,9 @@ Output (.npz, one row per Gaussian of the INPUT FILE, in file order):
                 under 0.5 are worth a look in 'leaffit-usd edit')
   input_to_working   4x4, the frame the parameters are measured in; params: JSON string
 
-Parameters are the paper's, in working units (root at 0, +Z up, plant height 1).
+Lengths are in working units (root at 0, +Z up, plant height 1). The up axis, when not given,
+comes from the table under the plant or is estimated; with --up and --root given the command
+does less work (see README, segmentation timings).
 
 Examples:
   leaffit-usd segment plant.ply -o labels.npz --preview seg.png
