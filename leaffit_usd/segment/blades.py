@@ -26,10 +26,9 @@ Steps (working frame: root at the origin, +Z up, plant height 1; radii in those 
    a curled blade that do not connect to the stem stay blade.
 3. **Blades** are the connected components of the sheet points. A blade touches the stem where
    its petiole (or petiolule, or a sessile base) enters: the *attachments*, sheet points with a
-   stem neighbour, clustered within ``attach_link`` spacings; attachments closer to each other
-   along the blade than ``ATTACH_MERGE`` of its extent are one stalk touching it at a few spots.
-   A blade with several attachments is several leaves (touching or overlapping leaves, each on
-   its own stalk): it is split by graph-geodesic distance from each attachment.
+   stem neighbour, clustered within ``attach_link`` spacings. A blade with several attachments
+   is several leaves (touching or overlapping leaves, each on its own stalk): it is split by
+   graph-geodesic distance from each attachment.
 4. **Leaflets joined at one point** (the three leaflets of a trifoliate leaf meeting at the end of
    the rachis, touching young leaves of a bud) share one attachment. The merge tree of the
    superlevel sets of the distance from the attachment separates them: tips are born, branches
