@@ -76,7 +76,6 @@ SPLIT_CONFIDENCE = 0.6   # confidence factor of a leaf cut from a larger blade
 # within twice, and >= ~150 degrees within four times the radius; a leaf blade does not
 TUBE_WIDE = ((2, 0.5), (4, 0.7))
 PALM_BALANCE = 0.2       # leaflets cut apart at their bases are of comparable size (>= 1/5)
-ATTACH_MERGE = 0.25      # stalk contacts closer than this x the blade's extent are one stalk
 STEM_PATCH = 0.25        # a "blade" touching the stem with more than this fraction of its points
                          # is a patch of stem surface (leaves touch it with 0.1-6 %, patches 40-60 %)
 ISLAND_GAP = 0.5         # pieces farther than this (plant reach units) from the plant are not it
@@ -376,8 +375,6 @@ def find_leaves(g: SurfaceGraph, sheet: csr_matrix, stem: np.ndarray, d_root: np
             fin = np.where(np.isfinite(d_root[members]), d_root[members], np.inf)
             groups = [members[[int(np.argmin(fin))]]]
         dist = np.stack([dijkstra(gb, indices=grp, min_only=True)[members] for grp in groups])
-        if len(groups) > 1:
-            groups, dist = _merge_close_attachments(groups, dist, members)
         owner = np.argmin(dist, 0)
         for i in range(len(groups)):
             piece, pd = members[owner == i], dist[i][owner == i]
@@ -422,38 +419,6 @@ def _claim_loose_sheet(g: SurfaceGraph, labels: np.ndarray, stem: np.ndarray) ->
     dl, _, src = dijkstra(g.subgraph(~stem), indices=seeds, min_only=True, return_predecessors=True)
     take = loose & np.isfinite(dl)
     labels[take] = labels[src[take]]
-
-
-def _merge_close_attachments(groups: list, dist: np.ndarray, members: np.ndarray):
-    """One stalk may touch its blade at a few spots near the blade's base (a petiole pressed
-    against it, a stem passing close): attachment groups closer to each other along the blade
-    than ``ATTACH_MERGE`` x the blade's extent from its attachments are one (single linkage).
-    Leaves that touch, each on its own stalk, have their attachments a leaf length apart.
-
-    groups : list of (g_i,) graph indices; dist : (G, k) blade-geodesic distances of the
-    ``members`` (k,) from each group. Returns the merged (groups, dist)."""
-    finite = dist[np.isfinite(dist)]
-    extent = float(finite.max()) if len(finite) else 0.0
-    pos = {int(v): i for i, v in enumerate(members)}
-    n = len(groups)
-    parent = list(range(n))
-
-    def find(x):
-        while parent[x] != x:
-            x = parent[x]
-        return x
-
-    for i in range(n):
-        for j in range(i + 1, n):
-            gap = float(dist[i][[pos[int(v)] for v in groups[j]]].min())
-            if gap < ATTACH_MERGE * extent:
-                parent[find(j)] = find(i)
-    roots = sorted({find(i) for i in range(n)})
-    if len(roots) == n:
-        return groups, dist
-    merged = [np.concatenate([groups[i] for i in range(n) if find(i) == r]) for r in roots]
-    mdist = np.stack([dist[[i for i in range(n) if find(i) == r]].min(0) for r in roots])
-    return merged, mdist
 
 
 def _restrict(graph: csr_matrix, mask: np.ndarray) -> csr_matrix:
