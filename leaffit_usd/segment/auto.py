@@ -618,6 +618,8 @@ def _segment_blades(pts, root, inlier, normals, p: SegmentParams, tm: dict, t0: 
     if lost:
         log.info("the cloud is in pieces: %d of %d Gaussians are not connected to the root (no "
                  "root distance; their leaves are still found)", lost, len(pts))
+    if (~inlier).any() and inlier.sum() > 1:
+        _attach_outliers(pts, labels, d_root, inlier, np.ones(len(pts), bool), p)
     n_leaves = len(res.leaf_tip)
     tree_leaf = labels[res.tree_nodes].astype(np.int32)
     tm["total"] = time.perf_counter() - t0

@@ -511,7 +511,7 @@ def segment_blades(pts: np.ndarray, root: int, inlier: np.ndarray, normals, para
     timings["leaves"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    out = _to_gaussians(pts, g, found, conf, reach, d_root, source, inlier, params.outlier_factor)
+    out = _to_gaussians(pts, g, found, conf, reach, d_root, source, inlier)
     timings["labels"] = time.perf_counter() - t
     return out
 
@@ -541,12 +541,9 @@ def far_pieces(g: SurfaceGraph, source: int, gap: float) -> np.ndarray:
     return far
 
 
-def _to_gaussians(pts, g: SurfaceGraph, found: BladeLeaves, conf, reach, d_root, root_d, inlier,
-                  outlier_factor: float):
+def _to_gaussians(pts, g: SurfaceGraph, found: BladeLeaves, conf, reach, d_root, root_d, inlier):
     """Step 6: order leaves by base D_r, labels for every Gaussian (nearest domain point), tips,
-    bases and the shortest-path tree from the root to every tip. A floater (``~inlier``) takes
-    its nearest domain point's label too when within ``outlier_factor`` x the median graph
-    spacing (a leaf's off-surface fuzz); farther ones stay unassigned (0, no root distance)."""
+    bases and the shortest-path tree from the root to every tip."""
     n_leaves = len(found.was_split)
     lab = found.labels
     big = np.where(np.isfinite(d_root), d_root, -np.inf)
@@ -563,10 +560,9 @@ def _to_gaussians(pts, g: SurfaceGraph, found: BladeLeaves, conf, reach, d_root,
     lab_sorted = relabel[lab]
     dn, near = cKDTree(g.points).query(pts, k=1, workers=-1)
     d_all = (d_root[near] + dn) * reach
-    labels = lab_sorted[near].astype(np.int32)  # a piece cut off from the root keeps its leaves
-    stray = ~inlier & (dn > outlier_factor * float(np.median(g.spacing)))
-    d_all[stray] = np.inf
-    labels[stray] = 0
+    d_all[~inlier] = np.inf
+    labels = lab_sorted[near].astype(np.int32)
+    labels[~inlier] = 0  # a piece cut off from the root (a hole) keeps its leaves
     _, pred = dijkstra(g.graph, indices=root_d, return_predecessors=True)
     nodes, parent = _shortest_path_tree(pred, root_d, tips_d[order])
     return BladeResult(labels=labels, leaf_tip=g.domain[tips_d[order]], leaf_base=g.domain[bases_d[order]],
