@@ -8,16 +8,21 @@ isolation -> frame (up, root) -> automatic segmentation. Printed per plant:
 
 * isolation precision / recall per class against the ground truth (samples: plant, ground, pot,
   soil, background, floater; external: plant / scene / floater, its GT has no finer classes),
-  and the share of the trimmed plant's own Gaussians that isolation removed;
+  the share of the Gaussians kept as the plant that are GT scene ("scene kept": what would put
+  asset geometry outside the plant), and the share of the trimmed plant's own Gaussians that
+  isolation removed; isolation's CPU seconds (user + sys, all threads);
 * up-axis error (degrees) and root error (fraction of the plant height) on the capture;
 * segmentation scores (Acc / mIoU / PQ, ``../shared/plants/eval_seg.py`` when present, else
   ``leaffit_usd.metrics``) on the capture and on the trimmed plant, and their mIoU difference;
+  and two attribution runs on the capture (see :func:`run_pipeline`): "same" (the trimmed
+  plant's Gaussians in the capture's file order) and "nocue" (the isolated plant without the
+  scene's frame cues);
 * with ``--convert``: the whole ``convert`` of the capture, baked (leaves + stem, input frame),
   and how much of the asset lies outside the plant: the largest distance of an asset vertex from
   the nearest GT plant Gaussian, and the share of vertices farther than 5 % of the plant height.
 
     .venv/bin/python benchmarks/isolation.py [--set samples|external|all] [--convert]
-        [--gaussians 60000] [--only NAME ...] [--ext-dir DIR]
+        [--gaussians 60000] [--only NAME ...] [--ext-dir DIR] [--ext-seeds 1 2 3]
 
 Writes benchmarks/results/isolation.json.
 """
@@ -27,6 +32,7 @@ import argparse
 import importlib.util
 import json
 import logging
+import os
 import subprocess
 import sys
 import tempfile
@@ -74,25 +80,52 @@ def angle_deg(a, b) -> float:
     return float(np.degrees(np.arccos(np.clip(a @ b / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))
 
 
-def run_pipeline(path) -> dict:
-    """isolate -> frame -> segment with the defaults; labels in file order (-1 = removed)."""
-    cloud_in = load_cloud(path)
-    t0 = time.perf_counter()
-    plant, iso = isolate_stage(cloud_in)
-    t_iso = time.perf_counter() - t0
-    choice = frame_from_isolation(plant, iso, cloud=cloud_in)
+def _segment(cloud_in, plant, choice) -> tuple[np.ndarray, int]:
+    """Automatic segmentation of ``plant`` (a subset of ``cloud_in``) in ``choice``'s frame:
+    (labels in file order, -1 = not in ``plant``; leaf count)."""
     cw = transform_cloud(plant, choice.frame.input_to_working)
-    t1 = time.perf_counter()
     seg = auto_segment(cw, choice.root_index, SegmentParams())
-    t_seg = time.perf_counter() - t1
     labels = np.full(cloud_in.file_count, -1, np.int64)
     labels[plant.file_index] = seg.labels
+    return labels, int(seg.n_leaves)
+
+
+def _pipeline(cloud_in) -> dict:
+    """isolate -> frame -> segment with the defaults on a loaded cloud (or a subset of one)."""
+    t0 = time.perf_counter()
+    c0 = time.process_time()
+    plant, iso = isolate_stage(cloud_in)
+    t_iso, cpu_iso = time.perf_counter() - t0, time.process_time() - c0
+    choice = frame_from_isolation(plant, iso, cloud=cloud_in)
+    t1 = time.perf_counter()
+    labels, leaves = _segment(cloud_in, plant, choice)
+    t_seg = time.perf_counter() - t1
     classes = cloud_in.to_file_order(np.asarray(iso.classes, np.uint8), fill=255)
-    up = choice.frame.up
     root = plant.means[choice.root_index].astype(np.float64)
-    return {"labels": labels, "classes": classes, "up": np.asarray(up, float), "root": root,
-            "up_source": iso.up_source, "t_isolate": t_iso, "t_segment": t_seg,
-            "leaves": int(seg.n_leaves), "iso": iso}
+    return {"labels": labels, "classes": classes, "up": np.asarray(choice.frame.up, float), "root": root,
+            "up_source": iso.up_source, "t_isolate": t_iso, "cpu_isolate": cpu_iso,
+            "t_segment": t_seg, "leaves": leaves, "iso": iso, "plant": plant}
+
+
+def run_pipeline(path, gt_labels=None) -> dict:
+    """isolate -> frame -> segment with the defaults; labels in file order (-1 = removed).
+
+    With ``gt_labels`` (file order) also two attribution runs on the same capture:
+    "same" -- the whole pipeline on the capture less its GT scene Gaussians (label -2): the
+    trimmed plant's very Gaussians (plant and floaters) in the capture's file order, so "same" vs
+    "trim" is the pipeline's sensitivity to file order alone, and "cap" vs "same" is what the
+    scene changes; "nocue" -- the plant isolation kept, segmented in a frame estimated from it
+    alone (no table up, no stem base at the soil): "cap" vs "nocue" is what the scene's cues
+    change, "nocue" vs "same" what the kept set's differences change."""
+    from leaffit_usd.splats.frame import make_frame
+
+    cloud_in = load_cloud(path)
+    out = _pipeline(cloud_in)
+    if gt_labels is not None:
+        keep = np.asarray(gt_labels)[np.asarray(cloud_in.file_index)] >= -1  # cloud order
+        out["labels_same"] = _pipeline(cloud_in.subset(keep))["labels"]
+        out["labels_nocue"], _ = _segment(cloud_in, out["plant"], make_frame(out["plant"]))
+    return out
 
 
 def class_scores(gt_class, pred_class, names) -> dict:
@@ -157,31 +190,35 @@ def plants_samples(gaussians: int, cache: Path, only):
     return out
 
 
-def plants_external(ext_dir: Path, only):
+def plants_external(ext_dir: Path, seeds, only):
+    """paper8 ``--scene`` plants and the same without ``--scene``, per seed, generated once into
+    ``ext_dir/iso-paper8-SEED/{scene,plain}``."""
     if not SHARED.is_dir():
         print(f"skipping the external plants: {SHARED} is absent", file=sys.stderr)
         return []
-    scene_dir, plain_dir = ext_dir / "scene", ext_dir / "plain"
-    py = _external_python()
-    for d, extra in ((scene_dir, ["--scene"]), (plain_dir, [])):
-        if not (d / "index.json").is_file():
-            cmd = [py, str(SHARED / "make_plants.py"), "--out", str(d), "--seed", "1", "--preset",
-                   "paper8", "--quiet", *extra]
-            print("generating:", " ".join(cmd), file=sys.stderr)
-            subprocess.run(cmd, check=True)
     out = []
-    for entry in json.loads((scene_dir / "index.json").read_text())["plants"]:
-        name = entry["name"]
-        if only and name not in only:
-            continue
-        g = np.load(scene_dir / name / "gt.npz")
-        gt = np.asarray(g["labels"])
-        cls = np.where(gt >= 0, 0, np.where(gt == -1, 5, 4))  # plant / floater / scene
-        out.append({"set": "external", "name": name, "scene": scene_dir / name / "point_cloud.ply",
-                    "trimmed": plain_dir / name / "point_cloud.ply", "gt_labels": gt, "gt_class": cls,
-                    "gt_labels_trimmed": np.asarray(np.load(plain_dir / name / "gt.npz")["labels"]),
-                    "up": np.asarray(g["up"]), "root": np.asarray(g["root"]),
-                    "height": float(g["plant_height"])})
+    for seed in seeds:
+        scene_dir, plain_dir = ext_dir / f"iso-paper8-{seed}" / "scene", ext_dir / f"iso-paper8-{seed}" / "plain"
+        for d, extra in ((scene_dir, ["--scene"]), (plain_dir, [])):
+            if not (d / "index.json").is_file():
+                cmd = [_external_python(), str(SHARED / "make_plants.py"), "--out", str(d), "--seed",
+                       str(seed), "--preset", "paper8", "--quiet", *extra]
+                print("generating:", " ".join(cmd), file=sys.stderr)
+                subprocess.run(cmd, check=True)
+        for entry in json.loads((scene_dir / "index.json").read_text())["plants"]:
+            name = entry["name"]
+            if only and name not in only:
+                continue
+            g = np.load(scene_dir / name / "gt.npz")
+            gt = np.asarray(g["labels"])
+            cls = np.where(gt >= 0, 0, np.where(gt == -1, 5, 4))  # plant / floater / scene
+            out.append({"set": f"external-s{seed}", "name": name if seed == 1 else f"{name}-s{seed}",
+                        "scene": scene_dir / name / "point_cloud.ply",
+                        "trimmed": plain_dir / name / "point_cloud.ply", "gt_labels": gt,
+                        "gt_class": cls,
+                        "gt_labels_trimmed": np.asarray(np.load(plain_dir / name / "gt.npz")["labels"]),
+                        "up": np.asarray(g["up"]), "root": np.asarray(g["root"]),
+                        "height": float(g["plant_height"])})
     return out
 
 
@@ -201,7 +238,9 @@ def main(argv=None) -> int:
     ap.add_argument("--only", nargs="*", default=None)
     ap.add_argument("--convert", action="store_true", help="also run the whole convert on each capture")
     ap.add_argument("--cache", default=str(Path(tempfile.gettempdir()) / "leaffit-isolation-bench"))
-    ap.add_argument("--ext-dir", default=None, help="external plants (default CACHE/external)")
+    ap.add_argument("--ext-dir", default=os.environ.get("LEAFFIT_EXT_CACHE"),
+                    help="external plants' cache (default $LEAFFIT_EXT_CACHE, else CACHE/external)")
+    ap.add_argument("--ext-seeds", type=int, nargs="+", default=[1], help="paper8 seeds (1)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/isolation.json"))
     a = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
@@ -211,16 +250,20 @@ def main(argv=None) -> int:
     if a.set in ("samples", "all"):
         plants += plants_samples(a.gaussians, cache / "samples", a.only)
     if a.set in ("external", "all"):
-        plants += plants_external(Path(a.ext_dir) if a.ext_dir else cache / "external", a.only)
+        plants += plants_external(Path(a.ext_dir) if a.ext_dir else cache / "external", a.ext_seeds,
+                                  a.only)
     rows = []
-    hdr = (f"{'plant':28s} {'up°':>5s} {'root':>6s} {'mIoU cap':>8s} {'mIoU trim':>9s} {'Δ':>6s} "
-           f"{'plant P/R':>11s} {'trim lost':>9s} {'iso s':>6s}")
+    hdr = (f"{'plant':24s} {'up°':>5s} {'root':>6s} {'cap':>6s} {'same':>6s} {'nocue':>6s} "
+           f"{'trim':>6s} {'Δ':>6s} {'plant P/R':>11s} {'scene kept':>10s} {'trim lost':>9s} "
+           f"{'iso cpu':>7s}")
     print(hdr)
     for pl in plants:
-        cap = run_pipeline(pl["scene"])
+        cap = run_pipeline(pl["scene"], pl["gt_labels"])
         trim = run_pipeline(pl["trimmed"])
         s_cap = seg_scores(pl["gt_labels"], cap["labels"])
         s_trim = seg_scores(pl["gt_labels_trimmed"], trim["labels"])
+        s_gt = seg_scores(pl["gt_labels"], cap["labels_same"])
+        s_nc = seg_scores(pl["gt_labels"], cap["labels_nocue"])
         if pl["set"] == "samples":
             names = [(i, n) for i, n in enumerate(CLASS_NAMES)]
         else:
@@ -229,17 +272,25 @@ def main(argv=None) -> int:
         cs = class_scores(pl["gt_class"], pred, names)
         gtt = pl["gt_labels_trimmed"]
         lost = float(((trim["classes"] != 0) & (gtt >= 0)).sum() / max((gtt >= 0).sum(), 1))
+        kept = pred == 0
+        # "no asset geometry outside the plant", on the Gaussians: the share of those kept as the
+        # plant that are GT scene (table, pot, soil, clutter; floaters are counted apart)
+        gc = np.asarray(pl["gt_class"])
+        scene_kept = float((kept & np.isin(gc, [1, 2, 3, 4])).sum() / max(kept.sum(), 1))
+        floater_kept = float((kept & (gc == 5)).sum() / max(kept.sum(), 1))
         up_err = angle_deg(cap["up"], pl["up"])
         root_err = float(np.linalg.norm(cap["root"] - pl["root"]) / pl["height"])
         row = {"set": pl["set"], "name": pl["name"], "up_error_deg": round(up_err, 2),
                "up_source": cap["up_source"], "root_error_over_height": round(root_err, 4),
-               "seg_capture": s_cap, "seg_trimmed": s_trim,
+               "seg_capture": s_cap, "seg_trimmed": s_trim, "seg_same_gaussians": s_gt,
+               "seg_no_cues": s_nc,
                "miou_delta": round(s_cap["mIoU"] - s_trim["mIoU"], 2),
                "leaves_capture": cap["leaves"], "leaves_trimmed": trim["leaves"],
                "classes": cs, "trimmed_plant_lost": round(lost, 5),
+               "kept_scene_share": round(scene_kept, 5), "kept_floater_share": round(floater_kept, 5),
                "trimmed_removed": trim["iso"].removed(),
-               "isolate_s": round(cap["t_isolate"], 2), "segment_s": round(cap["t_segment"], 2),
-               "gaussians": int(len(pl["gt_labels"]))}
+               "isolate_s": round(cap["t_isolate"], 2), "isolate_cpu_s": round(cap["cpu_isolate"], 2),
+               "segment_s": round(cap["t_segment"], 2), "gaussians": int(len(pl["gt_labels"]))}
         if a.convert:
             gl = np.asarray(pl["gt_labels"])
             pts = load_cloud(pl["scene"]).means
@@ -248,11 +299,12 @@ def main(argv=None) -> int:
                 row["asset"] = asset_outside(pl["scene"], gl, plant_pts, pl["height"], td)
         rows.append(row)
         pc = cs["plant"]
-        print(f"{pl['name']:28s} {up_err:5.1f} {root_err:6.3f} {s_cap['mIoU']:8.2f} {s_trim['mIoU']:9.2f} "
-              f"{row['miou_delta']:+6.2f} {pc['precision']:.3f}/{pc['recall']:.3f} {lost:9.4f} "
-              f"{cap['t_isolate']:6.1f}" + (f"  asset max {row['asset']['max_dist_over_height']:.3f} H, "
-                                           f">5%H {row['asset']['share_beyond_5pct']:.4f}"
-                                           if "asset" in row else ""), flush=True)
+        print(f"{pl['name']:24s} {up_err:5.2f} {root_err:6.3f} {s_cap['mIoU']:6.2f} {s_gt['mIoU']:6.2f} "
+              f"{s_nc['mIoU']:6.2f} {s_trim['mIoU']:6.2f} {row['miou_delta']:+6.2f} "
+              f"{pc['precision']:.3f}/{pc['recall']:.3f} {scene_kept:10.5f} {lost:9.4f} "
+              f"{cap['cpu_isolate']:7.2f}" + (f"  asset max {row['asset']['max_dist_over_height']:.3f} H, "
+                                              f">5%H {row['asset']['share_beyond_5pct']:.4f}"
+                                              if "asset" in row else ""), flush=True)
     summary = {}
     for st in sorted({r["set"] for r in rows}):
         rs = [r for r in rows if r["set"] == st]
@@ -263,9 +315,12 @@ def main(argv=None) -> int:
             "max_abs_miou_delta": round(float(np.max([abs(r["miou_delta"]) for r in rs])), 2),
             "max_up_error_deg": round(float(np.max([r["up_error_deg"] for r in rs])), 2),
             "max_trimmed_plant_lost": round(float(np.max([r["trimmed_plant_lost"] for r in rs])), 5),
+            "max_kept_scene_share": round(float(np.max([r["kept_scene_share"] for r in rs])), 5),
+            "within_2_miou": int(sum(abs(r["miou_delta"]) <= 2 for r in rs)),
         }
         if all("asset" in r for r in rs):
             summary[st]["max_asset_dist_over_height"] = max(r["asset"]["max_dist_over_height"] for r in rs)
+            summary[st]["max_asset_share_beyond_5pct"] = max(r["asset"]["share_beyond_5pct"] for r in rs)
         print(st, json.dumps(summary[st]))
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps({"summary": summary, "plants": rows,
