@@ -11,9 +11,9 @@ NAME = "isolate"
 HELP = "remove the table, pot, soil, background and floaters from a capture; write the plant"
 DESCRIPTION = """\
 Plant isolation, the stage 'convert' runs before the frame: finds the ground or table plane
-(seeded RANSAC, tested to look like a table from the plant's side), background objects and floaters (connected components, statistical outliers),
-the pot (a ring fitted around the stem axis, followed up its wall) and the soil inside its rim,
-and keeps the plant. The result is a cleaned capture (.ply, or USD splats for .usd/.usda/.usdc)
+(seeded RANSAC, tested to look like a table from the plant's side), background objects and
+floaters (connected components, statistical outliers), the pot (a ring fitted around the stem
+axis, followed up its wall) and the soil inside its rim, and keeps the plant. The result is a cleaned capture (.ply, or USD splats for .usd/.usda/.usdc)
 in the input frame; its Gaussians are a subset of the input's, in the same order.
 
 --classes writes, per Gaussian of the INPUT file (file order), its class (uint8: 0 plant,
