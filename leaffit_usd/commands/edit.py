@@ -229,16 +229,20 @@ def run(args) -> int:
         print(line, flush=True)
     if not args.no_browser:
         _open_browser(server.url)
-    previous = None
+    previous = {}
     if threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGTERM, _interrupt)  # stop as cleanly as on Ctrl-C
+        previous[signal.SIGTERM] = signal.signal(signal.SIGTERM, _interrupt)  # stop as on Ctrl-C
+        # Ctrl-C stops the server even when the process started with SIGINT ignored (launched
+        # in the background by a script, or under a test runner that was): Python then
+        # installs no handler of its own and the server could only be killed
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         server.serve_forever()
     except KeyboardInterrupt:
         pass
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for s, h in previous.items():
+            signal.signal(s, h)
     if session.segmenter.operations != session.saved_ops:
         log.warning("edit: stopped with %d unsaved operations", len(session.segmenter.operations))
     print("leaffit-usd edit: stopped", flush=True)
