@@ -53,6 +53,7 @@ import numpy as np
 
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.geometry import knn as _knn
+from leaffit_usd.geometry.plane import plane_basis
 from leaffit_usd.isolate.result import (BACKGROUND, FLOATER, GROUND, PLANT, POT, SOIL,
                                         Isolation)
 
@@ -159,14 +160,6 @@ class Crop:
 
 
 # ---- helpers ----------------------------------------------------------------------------------
-def _plane_basis(u: np.ndarray) -> np.ndarray:
-    """(3, 2) orthonormal basis of the plane perpendicular to unit ``u``."""
-    a = np.eye(3)[int(np.argmin(np.abs(u)))]
-    e1 = np.cross(u, a)
-    e1 /= np.linalg.norm(e1)
-    return np.stack([e1, np.cross(u, e1)], axis=1)
-
-
 def _heights(p: np.ndarray, n: np.ndarray, d: float) -> np.ndarray:
     """(M,) signed distances ``p . n + d`` of (M, 3) points, element-wise (no BLAS: the same
     bits at any thread count)."""
@@ -529,7 +522,7 @@ def _ground_test(s, h, n_, thr, voxel, edges, p_: IsolateParams, exclude) -> dic
     if len(on) < 50:
         return out
     # the patch and what lies behind it first (cheap; most leaves and walls fail here)
-    basis = _plane_basis(n_)
+    basis = plane_basis(n_)
     xy_on = s[on] @ basis
     in_patch, grid, frame = _largest_patch(xy_on, 2 * voxel)
     offp = np.flatnonzero(np.abs(h) > thr)
@@ -635,7 +628,7 @@ def _pot_and_soil(cloud, pts, classes, up, d0, thr, p_: IsolateParams):
     H = float(np.quantile(hs, 0.99))
     if H <= 0:
         return None, None
-    basis = _plane_basis(up)
+    basis = plane_basis(up)
     shape = _pot_shape(pts[sel] @ basis, hs, H, thr, p_)
     if shape is None:
         return None, None

@@ -296,10 +296,8 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
             x = parent[x]
         return x
 
-    def is_tube(x):  # the normal tensor of the branch's free points (rarely asked: only
-        n = nrm[free[x]]  # when two branches of leaf size meet)
-        ev = np.linalg.eigvalsh(n.T @ n / len(n))
-        return ev[1] > params.tube_ratio * max(ev[2], 1e-12)
+    def is_tube(x):  # of the branch's free points (asked only when two leaf-size branches meet)
+        return normal_tensor_ratio(nrm[free[x]]) > params.tube_ratio
 
     def freeze(x):
         leaves.append(np.asarray(free[x]))
@@ -397,10 +395,9 @@ def find_leaves(g: SurfaceGraph, sheet: csr_matrix, stem: np.ndarray, d_root: np
         labels[lv] = i + 1
     rest_nodes = np.concatenate(rest) if rest else np.zeros(0, np.int64)
     if len(rest_nodes) and keep:
-        seeds = np.flatnonzero(labels > 0)
-        dl, _, src = dijkstra(gb, indices=seeds, min_only=True, return_predecessors=True)
-        ok = np.isfinite(dl[rest_nodes])
-        labels[rest_nodes[ok]] = labels[src[rest_nodes[ok]]]
+        todo = np.zeros(m, bool)
+        todo[rest_nodes] = True
+        _nearest_leaf(gb, labels, todo)
     _claim_loose_sheet(g, labels, stem)
     return BladeLeaves(labels=labels, was_split=np.asarray([s for _, s in keep], bool), stem=stem)
 
@@ -413,11 +410,16 @@ def _claim_loose_sheet(g: SurfaceGraph, labels: np.ndarray, stem: np.ndarray) ->
     leaf points lost to the stem (1.1-1.3 % of all Gaussians, all along the blades); bits that
     touch only the stem stay stem."""
     loose = (labels == 0) & ~stem
-    if not loose.any() or not (labels > 0).any():
-        return
-    seeds = np.flatnonzero(labels > 0)
-    dl, _, src = dijkstra(g.subgraph(~stem), indices=seeds, min_only=True, return_predecessors=True)
-    take = loose & np.isfinite(dl)
+    if loose.any() and (labels > 0).any():
+        _nearest_leaf(g.subgraph(~stem), labels, loose)
+
+
+def _nearest_leaf(graph: csr_matrix, labels: np.ndarray, todo: np.ndarray) -> None:
+    """Points ``todo`` ((M,) bool) take the label of the nearest labelled point along ``graph``
+    (one multi-source Dijkstra); unreachable ones keep theirs. In place."""
+    dl, _, src = dijkstra(graph, indices=np.flatnonzero(labels > 0), min_only=True,
+                          return_predecessors=True)
+    take = todo & np.isfinite(dl)
     labels[take] = labels[src[take]]
 
 

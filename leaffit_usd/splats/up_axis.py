@@ -12,6 +12,7 @@ import numpy as np
 
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.geometry.outliers import inlier_mask
+from leaffit_usd.geometry.plane import plane_basis
 
 _UP_SAMPLE = 20_000       # points used by the up estimator (deterministic subsample)
 LOW_UP_CONFIDENCE = 0.35  # below this, estimate_up was wrong in some benchmark runs (benchmarks/up_axis.py)
@@ -71,21 +72,6 @@ def _remove_isolated(p: np.ndarray, k: int = 8, factor: float = 4.0) -> np.ndarr
     return p[keep] if keep.sum() > len(p) // 2 else p
 
 
-def _plane_basis(u: np.ndarray) -> np.ndarray:
-    """(3, 2) orthonormal basis of the plane perpendicular to unit vector ``u``.
-
-    Written out (not np.cross): the up search calls it ~10^3 times.
-    """
-    x, y, z = float(u[0]), float(u[1]), float(u[2])
-    i = int(np.argmin(np.abs(u)))
-    # e1 = u x a with a the axis least aligned with u
-    e1 = (0.0, z, -y) if i == 0 else ((-z, 0.0, x) if i == 1 else (y, -x, 0.0))
-    n1 = np.sqrt(e1[0] ** 2 + e1[1] ** 2 + e1[2] ** 2)
-    e1 = (e1[0] / n1, e1[1] / n1, e1[2] / n1)
-    e2 = (y * e1[2] - z * e1[1], z * e1[0] - x * e1[2], x * e1[1] - y * e1[0])
-    return np.array([[e1[0], e2[0]], [e1[1], e2[1]], [e1[2], e2[2]]])
-
-
 _BANDS = (0.05, 0.10, 0.15, 0.20, 0.25)
 _OFFSET_WEIGHT = 0.1
 _FLAT_WEIGHT = 0.05
@@ -128,7 +114,7 @@ def _root_score(p: np.ndarray, u: np.ndarray) -> tuple[float, np.ndarray]:  # no
     ext = hi - lo
     if ext <= 0:
         return np.inf, xyz.mean(0)
-    basis = _plane_basis(u)
+    basis = plane_basis(u)
     x = xyz @ basis  # (M, 2) horizontal coordinates
     canopy = h > lo + 0.3 * ext
     xc = x[canopy] if canopy.sum() >= 10 else x
@@ -221,7 +207,7 @@ def _refine(p: np.ndarray, u: np.ndarray, score: float, cones=(12.0, 6.0, 3.0, 1
         improved = True
         while improved:
             improved = False
-            basis = _plane_basis(u)
+            basis = plane_basis(u)
             for ang in np.linspace(0, 2 * np.pi, 8, endpoint=False):
                 d = np.cos(cone) * u + np.sin(cone) * (basis @ [np.cos(ang), np.sin(ang)])
                 d /= np.linalg.norm(d)
