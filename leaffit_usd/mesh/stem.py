@@ -7,12 +7,15 @@ Generation", extended).
    width ``level_width``; every connected piece of a level set is one skeleton node at the
    centroid of its Gaussians (for a tube sampled around its circumference, the centroid lies on
    the axis), linked to the piece of the previous level it touches. Short terminal spurs are
-   pruned. When the capture has too few stem Gaussians the segmentation's rootward tree is the
-   skeleton instead (``skeleton="tree"``, the paper's).
+   pruned. Stem Gaussians off every tube of that skeleton (a thin petiole or a branch base
+   that the wide level sets of a thick stem swallowed) become extra chains
+   (:func:`_missed_tubes`). When the capture has too few stem Gaussians the segmentation's
+   rootward tree is the skeleton instead (``skeleton="tree"``, the paper's).
 2. **Streams.** At every junction the child with the longest subtree continues its parent, so
    the main stem is one tube from the root to its top and every branch / petiole one tube
    starting *on its parent's axis* (the junction is continuous: the branch grows out of the
-   parent, no sphere lumps).
+   parent, no sphere lumps), as thick as itself from the start; the part of a branch hidden
+   whole inside its parent is cut off (:func:`_seat_branches`).
 3. **Smoothing.** Each stream's node centroids (weighted by their Gaussian counts) are
    smoothed by a cubic smoothing spline per coordinate against arc length
    (``scipy.interpolate.make_smoothing_spline``, cut-off ``axis_smoothing`` level widths),
@@ -73,6 +76,9 @@ class StemParams:
     base_level_ratio : level sets are at least this x the base's radius wide
     axis_smoothing : the axis spline smooths out wiggles shorter than about 2 pi x this x
         level_width
+    axis_radius_smoothing : ... and shorter than about 2 pi x this x the stream's median radius
+        (a tube does not bend within its own width: on a sparse capture the nodes of a thick
+        stem zigzag inside it)
     leonardo_weight : weight of Leonardo's rule against the measured radii (relative rows)
     smooth_weight : weight of the radius smoothness along a stream
     sides : vertices per ring (LOD0)
@@ -92,6 +98,7 @@ class StemParams:
     min_gaussians: int = 60
     prune: float = 0.5
     axis_smoothing: float = 0.5
+    axis_radius_smoothing: float = 0.0
     base_level_ratio: float = 0.75
     leonardo_weight: float = 1.0
     smooth_weight: float = 1.0
@@ -116,7 +123,7 @@ class StemParams:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ParameterError(name, "a positive number", v)
-        for name in ("prune", "axis_smoothing", "base_level_ratio", "leonardo_weight", "smooth_weight", "tip_length"):
+        for name in ("prune", "axis_smoothing", "axis_radius_smoothing", "base_level_ratio", "leonardo_weight", "smooth_weight", "tip_length"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ParameterError(name, "a number >= 0", v)
@@ -472,7 +479,151 @@ def gaussian_skeleton(points: np.ndarray, labels: np.ndarray, root_index: int,
                   members=idx[pts_ok], member_node=lab.astype(np.int64), spread=spread)
     sk = _reroot(sk, root)
     sk = recentre_nodes(sk, points)
-    return centre_junctions(prune_spurs(sk, float(params.prune) * w))
+    sk = centre_junctions(prune_spurs(sk, float(params.prune) * w))
+    return _missed_tubes(sk, points, idx, G, g, params)
+
+
+def _skeleton_residual(sk: Skeleton, q: np.ndarray) -> np.ndarray:
+    """(M,) distance of points q (M, 3) outside the skeleton's tubes: distance to the nearest
+    parent -> child segment minus the radius (``spread``, linear along the segment) there;
+    negative inside."""
+    from scipy.spatial import cKDTree
+
+    c = np.flatnonzero(sk.parent >= 0)
+    a, b = sk.pos[sk.parent[c]], sk.pos[c]
+    ra, rb = sk.spread[sk.parent[c]], sk.spread[c]
+    k = min(8, len(c))
+    _, cand = cKDTree(0.5 * (a + b)).query(q, k=k)
+    cand = cand.reshape(len(q), k)
+    ab = b[cand] - a[cand]                                   # (M, k, 3)
+    L2 = np.maximum((ab * ab).sum(2), 1e-30)
+    u = np.clip(((q[:, None, :] - a[cand]) * ab).sum(2) / L2, 0.0, 1.0)
+    d = np.linalg.norm(q[:, None, :] - (a[cand] + u[..., None] * ab), axis=2)
+    r = ra[cand] + u * (rb[cand] - ra[cand])
+    return (d - r).min(1)
+
+
+def _missed_tubes(sk: Skeleton, points: np.ndarray, idx: np.ndarray, G, g: np.ndarray,
+                  params: StemParams) -> Skeleton:
+    """Thin tubes the level sets swallowed, added as branches.
+
+    Level sets as wide as a thick stem (``base_level_ratio``) do not separate a thin petiole that
+    leaves it at a shallow angle, nor the base of a branch that runs alongside its parent before
+    it diverges: those Gaussians end up in the thick stem's level-set pieces, whose circle fit
+    ignores them, and no tube covers them. Here the stem Gaussians lying off every skeleton tube
+    (farther outside than a quarter of ``level_width`` or of the local radius, and than three
+    times the robust spread of all the Gaussians' offsets), or deep inside one (within half its
+    radius of the axis: the hidden base of a branch that starts inside its parent), are joined in
+    the neighbour graph; every piece of at least 8 of them spanning at least ``level_width`` is
+    cut into level sets of the same geodesic distance ``g`` at the base ``level_width`` and
+    becomes a chain of nodes hanging from the nearest skeleton node, its Gaussians moved to the
+    new nodes, which are then moved onto their tube's axis (:func:`recentre_nodes`).
+
+    points : (N, 3) all Gaussians; idx : (M,) the stem Gaussians' indices into points (sorted);
+    G : (M, M) their neighbour graph; g : (M,) geodesic distance from the base (inf: unreached).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    if len(sk.pos) < 2 or not len(sk.members):
+        return sk
+    loc = np.searchsorted(idx, sk.members)                     # members -> rows of G
+    res = _skeleton_residual(sk, points[sk.members])
+    sigma = 1.4826 * float(np.median(np.abs(res)))
+    w0 = float(params.level_width)
+    r_near = sk.spread[sk.member_node]
+    tau = max(3.0 * sigma, 0.25 * w0)
+    # off every tube's surface: outside it, or deep inside it (the hidden base of a branch that
+    # starts inside its parent, when the capture has Gaussians there)
+    off = (res > tau) | (res < -np.maximum(0.5 * sk.spread[sk.member_node], tau))
+    if off.sum() < 8:
+        return sk
+    M = len(idx)
+    flag = np.zeros(M, bool)
+    flag[loc[off]] = True
+    Gc = G.tocoo()
+    e = flag[Gc.row] & flag[Gc.col]
+    _, comp = connected_components(coo_matrix((np.ones(int(e.sum())), (Gc.row[e], Gc.col[e])),
+                                              shape=(M, M)), directed=False)
+    min_n = 8
+    row_of = np.full(M, -1, np.int64)
+    row_of[loc] = np.arange(len(loc))                          # G row -> member slot
+    pos, par, cnt, spr = list(sk.pos), list(sk.parent), list(sk.count), list(sk.spread)
+    member_node = sk.member_node.copy()
+    rows_off = np.flatnonzero(flag)
+    for c in np.unique(comp[rows_off]):
+        rows = rows_off[comp[rows_off] == c]
+        if len(rows) < min_n or not np.isfinite(g[rows]).all():
+            if len(rows) >= 4:
+                log.debug("stem: missed piece of %d Gaussians at %s dropped", len(rows),
+                          np.round(points[idx[rows]].mean(0), 3))
+            continue
+        level = np.floor(g[rows] / w0).astype(np.int64)
+        sub = np.zeros(M, bool)
+        sub[rows] = True
+        lvl = np.full(M, -1, np.int64)
+        lvl[rows] = level
+        same = sub[Gc.row] & sub[Gc.col] & (lvl[Gc.row] == lvl[Gc.col])
+        _, plab = connected_components(coo_matrix((np.ones(int(same.sum())), (Gc.row[same], Gc.col[same])),
+                                                   shape=(M, M)), directed=False)
+        uniq, piece = np.unique(plab[rows], return_inverse=True)
+        k = len(uniq)
+        q = points[idx[rows]]
+        n_p = np.bincount(piece, minlength=k)
+        cen = np.stack([np.bincount(piece, weights=q[:, j], minlength=k) for j in range(3)], 1) / n_p[:, None]
+        p_lvl = np.zeros(k, np.int64)
+        p_lvl[piece] = level
+        extent = float(np.linalg.norm(cen.max(0) - cen.min(0))) if k > 1 else 0.0
+        log.debug("stem: missed piece of %d Gaussians at %s, %d level pieces, extent %.4f", len(rows),
+                  np.round(q.mean(0), 3), k, extent)
+        if extent < w0:
+            continue  # a patch, not a tube
+        # each piece hangs from the lower piece it touches most, the lowest from the skeleton
+        pc = np.full(M, -1, np.int64)
+        pc[rows] = piece
+        ee = sub[Gc.row] & sub[Gc.col]
+        a_, b_ = pc[Gc.row[ee]], pc[Gc.col[ee]]
+        down = p_lvl[b_] < p_lvl[a_]
+        p_par = np.full(k, -1, np.int64)
+        if down.any():
+            key, cn = np.unique(a_[down] * k + b_[down], return_counts=True)
+            o = np.lexsort((-cn, key // k))
+            first = np.r_[True, (key // k)[o][1:] != (key // k)[o][:-1]]
+            p_par[(key // k)[o][first]] = (key % k)[o][first]
+        base = len(pos)
+        old = np.asarray(pos[:base])
+        for i in np.argsort(p_lvl, kind="stable"):
+            if p_par[i] >= 0:
+                par.append(base + int(p_par[i]))
+            else:
+                par.append(int(np.argmin(np.linalg.norm(old - cen[i], axis=1))))
+            pos.append(cen[i])
+            cnt.append(int(n_p[i]))
+            pm = q[piece == i]
+            spr.append(float(np.median(np.linalg.norm(pm - cen[i], axis=1))))
+        # the pieces were appended in level order: renumber the parents accordingly
+        order = np.argsort(p_lvl, kind="stable")
+        new_id = np.empty(k, np.int64)
+        new_id[order] = base + np.arange(k)
+        for j in range(base, base + k):
+            if par[j] >= base:
+                par[j] = int(new_id[par[j] - base])
+        slots = row_of[rows]
+        member_node[slots] = new_id[piece]
+        cnt_old = np.bincount(sk.member_node[slots], minlength=base)
+        for u in np.flatnonzero(cnt_old):
+            cnt[u] = max(int(cnt[u]) - int(cnt_old[u]), 0)
+    if len(pos) == len(sk.pos):
+        return sk
+    n0 = len(sk.pos)
+    par = np.asarray(par, np.int64)
+    pos = np.asarray(pos)
+    out = Skeleton(pos=pos, parent=par, count=np.asarray(cnt, np.int64),
+                   members=sk.members, member_node=member_node, spread=np.asarray(spr))
+    new = np.zeros(len(pos), bool)
+    new[n0:] = True
+    out = recentre_nodes(out, points, only=new)
+    return _reroot(out, 0)
 
 
 def _kasa_circle(q: np.ndarray) -> tuple[np.ndarray, float, float] | None:
@@ -495,7 +646,8 @@ def _kasa_circle(q: np.ndarray) -> tuple[np.ndarray, float, float] | None:
     return c, r, float(np.median(dev)) / r
 
 
-def recentre_nodes(sk: Skeleton, points: np.ndarray, rounds: int = 2) -> Skeleton:
+def recentre_nodes(sk: Skeleton, points: np.ndarray, rounds: int = 2,
+                   only: np.ndarray | None = None) -> Skeleton:
     """Nodes moved onto their tube's axis, ``spread`` set to the tube's radius there.
 
     A level-set piece of a tube reached from its side (a petiole leaving its stem, a sparse
@@ -504,7 +656,8 @@ def recentre_nodes(sk: Skeleton, points: np.ndarray, rounds: int = 2) -> Skeleto
     (Kasa, algebraic, unbiased on a partial arc) to its own and its neighbours' Gaussians,
     projected across the local axis direction (parent -> child). Junctions and blobs, where the
     Gaussians are no circle (median misfit above 25 % of the radius, a radius beyond 3x the
-    node's spread, a centre farther than 2x the spread), keep their centroid.
+    node's spread, a centre farther than 2x the spread), keep their centroid. ``only`` (n,) bool:
+    move just those nodes (None: all).
     """
     n = len(sk.pos)
     if n < 2 or not len(sk.members):
@@ -516,7 +669,7 @@ def recentre_nodes(sk: Skeleton, points: np.ndarray, rounds: int = 2) -> Skeleto
     pos, spread = sk.pos.copy(), sk.spread.copy()
     for _ in range(rounds):
         new_pos, new_spread = pos.copy(), spread.copy()
-        for u in range(n):
+        for u in (range(n) if only is None else np.flatnonzero(only)):
             p = int(sk.parent[u])
             nb = [u] + ([p] if p >= 0 else []) + kids[u]
             a = pos[p] if p >= 0 else pos[u]
@@ -908,8 +1061,9 @@ class _Tube:
     axis: np.ndarray      # (P, 3) fine axis samples
     radii: np.ndarray     # (P,)
     cap_start: bool
-    parent_tube: int
+    parent_tube: int      # index into the tube list, -1 for the root's
     attach: np.ndarray    # (3,) where the tube leaves its parent (its first axis point)
+    stream: int = -1      # index of its stream (``streams(sk)``)
 
 
 def _tubes(sk: Skeleton, areas: np.ndarray, points: np.ndarray, params: StemParams,
@@ -926,7 +1080,9 @@ def _tubes(sk: Skeleton, areas: np.ndarray, points: np.ndarray, params: StemPara
             pts[0] = node_pos.get(int(chain[0]), pts[0])
             wt[0] = 1e3 * wt.max()
         if len(pts) >= 2:
-            sm = _smooth_curve(pts, wt, float(params.axis_smoothing) * w)
+            r_med = float(np.median(sk.spread[chain[1:] if is_branch else chain]))
+            sm = _smooth_curve(pts, wt, max(float(params.axis_smoothing) * w,
+                                            float(params.axis_radius_smoothing) * r_med))
         else:
             sm = pts
         if is_branch:
@@ -936,6 +1092,9 @@ def _tubes(sk: Skeleton, areas: np.ndarray, points: np.ndarray, params: StemPara
                 node_pos[u] = sm[k]
                 stream_of[u] = si
         node_r = np.sqrt(areas[chain])
+        if is_branch and len(node_r) > 1:
+            # the junction node measures the parent: a branch is as thick as itself from the start
+            node_r[0] = node_r[1]
         if not is_branch and len(sk.members) and len(sm) >= 2:
             # the root node's centroid lies inside the base: reach down to its lowest Gaussians
             mem = points[sk.members[sk.member_node == chain[0]]]
@@ -974,7 +1133,31 @@ def _tubes(sk: Skeleton, areas: np.ndarray, points: np.ndarray, params: StemPara
         rf = np.interp(tf, t, node_r)
         parent_tube = stream_of.get(int(chain[0]), -1) if is_branch else -1
         tubes.append(_Tube(axis=fine, radii=rf, cap_start=not is_branch, parent_tube=parent_tube,
-                           attach=fine[0]))
+                           attach=fine[0], stream=si))
+    tube_of = {tb.stream: i for i, tb in enumerate(tubes)}
+    for tb in tubes:  # stream index -> tube index (a stream too short to sweep has no tube)
+        tb.parent_tube = tube_of.get(tb.parent_tube, -1)
+    return tubes
+
+
+def _seat_branches(tubes: list[_Tube]) -> list[_Tube]:
+    """Each branch starts where it emerges from its parent, not on the parent's axis: the part
+    of its axis whose whole cross-section lies inside the parent tube (distance to the parent's
+    axis + own radius <= parent radius) is cut off except its last sample, so the open start ring
+    stays hidden inside the parent (no gap) and no hidden wall runs down to the parent's axis."""
+    for tb in tubes:
+        if tb.parent_tube < 0 or len(tb.axis) < 3:
+            continue
+        par = tubes[tb.parent_tube]
+        d, t = _polyline_distance(tb.axis, par.axis)
+        rp = np.interp(t, np.arange(len(par.radii)), par.radii)
+        out = np.flatnonzero(d + tb.radii > rp)
+        if not len(out):
+            continue  # wholly inside the parent (a second arc of its surface): keep as built
+        i0 = min(max(int(out[0]) - 1, 0), len(tb.axis) - 2)
+        if i0 > 0:
+            tb.axis, tb.radii = tb.axis[i0:], tb.radii[i0:]
+            tb.attach = tb.axis[0]
     return tubes
 
 
@@ -989,11 +1172,12 @@ def _observed_areas(sk: Skeleton, points: np.ndarray, params: StemParams):
     tubes = _tubes(sk, np.full(n, 1e-6), points, params, smoothed)
     mem_pos = points[sk.members]
     chains = streams(sk)
+    axis_of = {tb.stream: tb.axis for tb in tubes}
     for si, chain in enumerate(chains):
         own = chain[1:] if si > 0 else chain
-        if si >= len(tubes):
+        if si not in axis_of:
             continue
-        axis = tubes[si].axis
+        axis = axis_of[si]
         sel = np.isin(sk.member_node, own)
         if not sel.any():
             continue
@@ -1148,7 +1332,7 @@ def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
     areas = solve_areas(sk, obs, wt, prior, params) if (wt > 0).any() else prior
     floor = (0.25 * pet_r) ** 2
     areas = np.maximum(areas, floor)
-    tubes = _tubes(sk, areas, pts_all, params)
+    tubes = _seat_branches(_tubes(sk, areas, pts_all, params))
     if not tubes:
         log.warning("stem: no tube could be swept; writing no stem")
         return _empty_stem()
