@@ -550,6 +550,9 @@ def _missed_tubes(sk: Skeleton, points: np.ndarray, idx: np.ndarray, G, g: np.nd
     row_of[loc] = np.arange(len(loc))                          # G row -> member slot
     pos, par, cnt, spr = list(sk.pos), list(sk.parent), list(sk.count), list(sk.spread)
     member_node = sk.member_node.copy()
+    n0 = len(sk.pos)
+    kids = sk.children()
+    starts = np.asarray([c for u in range(n0) if len(kids[u]) > 1 for c in kids[u]], np.int64)
     rows_off = np.flatnonzero(flag)
     for c in np.unique(comp[rows_off]):
         rows = rows_off[comp[rows_off] == c]
@@ -592,6 +595,20 @@ def _missed_tubes(sk: Skeleton, points: np.ndarray, idx: np.ndarray, G, g: np.nd
             p_par[(key // k)[o][first]] = (key % k)[o][first]
         base = len(pos)
         old = np.asarray(pos[:base])
+        # a piece that ends at the start of a branch is that branch's base, which ran alongside
+        # its parent inside the parent's level sets: the branch starts lower down instead, on the
+        # parent's axis next to the piece's lowest end (its first segment then follows it)
+        top, low = cen[int(np.argmax(p_lvl))], cen[int(np.argmin(p_lvl))]
+        a = int(np.argmin(np.linalg.norm(old[:n0] - low, axis=1)))
+        d_st = np.linalg.norm(old[starts] - top, axis=1) if len(starts) else np.zeros(0)
+        if len(d_st) and d_st.min() <= 2.0 * w0 + spr[int(starts[np.argmin(d_st)])]:
+            v = int(starts[np.argmin(d_st)])
+            u = a
+            while u >= 0 and u != v:
+                u = int(par[u])
+            if u != v and a != par[v]:  # a is not in v's subtree
+                par[v] = a
+                continue
         for i in np.argsort(p_lvl, kind="stable"):
             if p_par[i] >= 0:
                 par.append(base + int(p_par[i]))
@@ -613,9 +630,8 @@ def _missed_tubes(sk: Skeleton, points: np.ndarray, idx: np.ndarray, G, g: np.nd
         cnt_old = np.bincount(sk.member_node[slots], minlength=base)
         for u in np.flatnonzero(cnt_old):
             cnt[u] = max(int(cnt[u]) - int(cnt_old[u]), 0)
-    if len(pos) == len(sk.pos):
+    if len(pos) == n0 and (np.asarray(par) == sk.parent).all():
         return sk
-    n0 = len(sk.pos)
     par = np.asarray(par, np.int64)
     pos = np.asarray(pos)
     out = Skeleton(pos=pos, parent=par, count=np.asarray(cnt, np.int64),
@@ -657,7 +673,7 @@ def recentre_nodes(sk: Skeleton, points: np.ndarray, rounds: int = 2,
     projected across the local axis direction (parent -> child). Junctions and blobs, where the
     Gaussians are no circle (median misfit above 25 % of the radius, a radius beyond 3x the
     node's spread, a centre farther than 2x the spread), keep their centroid. ``only`` (n,) bool:
-    move just those nodes (None: all).
+    move just those nodes, fitted to their own and their neighbours among them (None: all).
     """
     n = len(sk.pos)
     if n < 2 or not len(sk.members):
@@ -672,6 +688,8 @@ def recentre_nodes(sk: Skeleton, points: np.ndarray, rounds: int = 2,
         for u in (range(n) if only is None else np.flatnonzero(only)):
             p = int(sk.parent[u])
             nb = [u] + ([p] if p >= 0 else []) + kids[u]
+            if only is not None:  # the other nodes' Gaussians are of other tubes
+                nb = [k for k in nb if only[k]]
             a = pos[p] if p >= 0 else pos[u]
             b = np.mean([pos[k] for k in kids[u]], axis=0) if kids[u] else pos[u]
             t = b - a
@@ -1064,6 +1082,7 @@ class _Tube:
     parent_tube: int      # index into the tube list, -1 for the root's
     attach: np.ndarray    # (3,) where the tube leaves its parent (its first axis point)
     stream: int = -1      # index of its stream (``streams(sk)``)
+    own: np.ndarray | None = None  # (M, 3) its own nodes' Gaussians (not the junction's)
 
 
 def _tubes(sk: Skeleton, areas: np.ndarray, points: np.ndarray, params: StemParams,
@@ -1132,8 +1151,10 @@ def _tubes(sk: Skeleton, areas: np.ndarray, points: np.ndarray, params: StemPara
             fine = np.stack([np.interp(tf, t, sm[:, k]) for k in range(3)], 1)
         rf = np.interp(tf, t, node_r)
         parent_tube = stream_of.get(int(chain[0]), -1) if is_branch else -1
+        own = points[sk.members[np.isin(sk.member_node, chain[1:] if is_branch else chain)]] \
+            if len(sk.members) else None
         tubes.append(_Tube(axis=fine, radii=rf, cap_start=not is_branch, parent_tube=parent_tube,
-                           attach=fine[0], stream=si))
+                           attach=fine[0], stream=si, own=own))
     tube_of = {tb.stream: i for i, tb in enumerate(tubes)}
     for tb in tubes:  # stream index -> tube index (a stream too short to sweep has no tube)
         tb.parent_tube = tube_of.get(tb.parent_tube, -1)
@@ -1143,15 +1164,25 @@ def _tubes(sk: Skeleton, areas: np.ndarray, points: np.ndarray, params: StemPara
 def _seat_branches(tubes: list[_Tube]) -> list[_Tube]:
     """Each branch starts where it emerges from its parent, not on the parent's axis: the part
     of its axis whose whole cross-section lies inside the parent tube (distance to the parent's
-    axis + own radius <= parent radius) is cut off except its last sample, so the open start ring
-    stays hidden inside the parent (no gap) and no hidden wall runs down to the parent's axis."""
+    axis + own radius <= parent radius) and has none of its Gaussians around it is cut off except
+    its last sample, so the open start ring stays hidden inside the parent (no gap) and no wall
+    the capture did not see runs down to the parent's axis."""
+    from scipy.spatial import cKDTree
+
     for tb in tubes:
         if tb.parent_tube < 0 or len(tb.axis) < 3:
             continue
         par = tubes[tb.parent_tube]
         d, t = _polyline_distance(tb.axis, par.axis)
         rp = np.interp(t, np.arange(len(par.radii)), par.radii)
-        out = np.flatnonzero(d + tb.radii > rp)
+        seen = np.zeros(len(tb.axis), bool)
+        if tb.own is not None and len(tb.own):
+            # its Gaussians deep inside the parent (not the parent's wall around the junction)
+            dq, tq = _polyline_distance(tb.own, par.axis)
+            deep = tb.own[dq < 0.5 * np.interp(tq, np.arange(len(par.radii)), par.radii)]
+            if len(deep):
+                seen = cKDTree(deep).query(tb.axis)[0] <= 2.0 * tb.radii
+        out = np.flatnonzero((d + tb.radii > rp) | seen)
         if not len(out):
             continue  # wholly inside the parent (a second arc of its surface): keep as built
         i0 = min(max(int(out[0]) - 1, 0), len(tb.axis) - 2)
