@@ -74,11 +74,10 @@ class StemParams:
     min_gaussians : fewest stem Gaussians for the Gaussian skeleton
     prune : terminal spurs shorter than ``prune`` x level_width are dropped
     base_level_ratio : level sets are at least this x the base's radius wide
+    reach_level_ratio : ... and this x the median distance of a stem Gaussian to its
+        ``neighbours``-th neighbour
     axis_smoothing : the axis spline smooths out wiggles shorter than about 2 pi x this x
         level_width
-    axis_radius_smoothing : ... and shorter than about 2 pi x this x the stream's median radius
-        (a tube does not bend within its own width: on a sparse capture the nodes of a thick
-        stem zigzag inside it)
     leonardo_weight : weight of Leonardo's rule against the measured radii (relative rows)
     smooth_weight : weight of the radius smoothness along a stream
     sides : vertices per ring (LOD0)
@@ -98,8 +97,8 @@ class StemParams:
     min_gaussians: int = 60
     prune: float = 0.5
     axis_smoothing: float = 0.5
-    axis_radius_smoothing: float = 0.0
     base_level_ratio: float = 0.75
+    reach_level_ratio: float = 1.0
     leonardo_weight: float = 1.0
     smooth_weight: float = 1.0
     sides: int = 12
@@ -123,7 +122,7 @@ class StemParams:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ParameterError(name, "a positive number", v)
-        for name in ("prune", "axis_smoothing", "axis_radius_smoothing", "base_level_ratio", "leonardo_weight", "smooth_weight", "tip_length"):
+        for name in ("prune", "axis_smoothing", "base_level_ratio", "reach_level_ratio", "leonardo_weight", "smooth_weight", "tip_length"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ParameterError(name, "a number >= 0", v)
@@ -339,8 +338,9 @@ def _neighbour_graph(P: np.ndarray, k: int):
 
 def _bridged_graph(P: np.ndarray, root_point: np.ndarray | None, params: StemParams):
     """The stem Gaussians' neighbour graph (CSR, edge weight = length) with every sizeable piece
-    bridged to the root's piece (closest pair first; specks stay apart), and the index of the
-    Gaussian nearest the root (the lowest one without a root point)."""
+    bridged to the root's piece (closest pair first; specks stay apart), the index of the
+    Gaussian nearest the root (the lowest one without a root point) and the median distance to
+    the k-th neighbour (the graph's reach: the capture's sampling)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
     from scipy.spatial import cKDTree
@@ -373,7 +373,7 @@ def _bridged_graph(P: np.ndarray, root_point: np.ndarray | None, params: StemPar
         others.remove(c)
     G = coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                    shape=(M, M)).tocsr()
-    return G, r0
+    return G, r0, gap / 3.0
 
 
 def _base_sources(P: np.ndarray, G, r0: int, w: float) -> np.ndarray:
@@ -450,13 +450,15 @@ def gaussian_skeleton(points: np.ndarray, labels: np.ndarray, root_index: int,
     P = points[idx]
     M = len(P)
     root_point = points[int(root_index)] if 0 <= int(root_index) < len(points) else None
-    G, r0 = _bridged_graph(P, root_point, params)
+    G, r0, reach = _bridged_graph(P, root_point, params)
     w = float(params.level_width)
     sources = _base_sources(P, G, r0, w)
     ring = P[sources, :2]
     base_r = float(np.median(np.linalg.norm(ring - ring.mean(0), axis=1))) if len(sources) > 3 else 0.0
-    # level sets no thinner than the base is wide: thin slabs of a thick stem break into arcs
-    w = max(w, float(params.base_level_ratio) * base_r)
+    # level sets no thinner than the base is wide (thin slabs of a thick stem break into arcs),
+    # nor than the neighbour graph's reach (on a sparse capture a thinner slab's pieces are a
+    # few Gaussians each: the nodes zigzag and spurious forks appear inside one tube)
+    w = max(w, float(params.base_level_ratio) * base_r, float(params.reach_level_ratio) * reach)
     g = dijkstra(G, directed=False, indices=sources, min_only=True)
     ok = np.isfinite(g)
     if ok.sum() < max(int(params.min_gaussians), 4):
@@ -480,7 +482,10 @@ def gaussian_skeleton(points: np.ndarray, labels: np.ndarray, root_index: int,
     sk = _reroot(sk, root)
     sk = recentre_nodes(sk, points)
     sk = centre_junctions(prune_spurs(sk, float(params.prune) * w))
-    return _missed_tubes(sk, points, idx, G, g, params)
+    # the missed tubes are thin: their level sets need not be as wide as the base, only as the
+    # graph's reach
+    w_thin = max(float(params.level_width), float(params.reach_level_ratio) * reach)
+    return _missed_tubes(sk, points, idx, G, g, params, w_thin)
 
 
 def _skeleton_residual(sk: Skeleton, q: np.ndarray) -> np.ndarray:
@@ -504,23 +509,25 @@ def _skeleton_residual(sk: Skeleton, q: np.ndarray) -> np.ndarray:
 
 
 def _missed_tubes(sk: Skeleton, points: np.ndarray, idx: np.ndarray, G, g: np.ndarray,
-                  params: StemParams) -> Skeleton:
+                  params: StemParams, w0: float | None = None) -> Skeleton:
     """Thin tubes the level sets swallowed, added as branches.
 
     Level sets as wide as a thick stem (``base_level_ratio``) do not separate a thin petiole that
     leaves it at a shallow angle, nor the base of a branch that runs alongside its parent before
     it diverges: those Gaussians end up in the thick stem's level-set pieces, whose circle fit
     ignores them, and no tube covers them. Here the stem Gaussians lying off every skeleton tube
-    (farther outside than a quarter of ``level_width`` or of the local radius, and than three
-    times the robust spread of all the Gaussians' offsets), or deep inside one (within half its
-    radius of the axis: the hidden base of a branch that starts inside its parent), are joined in
-    the neighbour graph; every piece of at least 8 of them spanning at least ``level_width`` is
-    cut into level sets of the same geodesic distance ``g`` at the base ``level_width`` and
-    becomes a chain of nodes hanging from the nearest skeleton node, its Gaussians moved to the
-    new nodes, which are then moved onto their tube's axis (:func:`recentre_nodes`).
+    (farther outside than a quarter of ``w0`` and than three times the robust spread of all the
+    Gaussians' offsets), or deep inside one (within half its radius of the axis: the hidden base
+    of a branch that starts inside its parent), are joined in the neighbour graph; every piece of
+    at least 8 of them spanning at least ``w0`` is cut into level sets of the same geodesic
+    distance ``g``, ``w0`` wide, and becomes a chain of nodes hanging from the nearest skeleton
+    node, its Gaussians moved to the new nodes, which are then moved onto their tube's axis
+    (:func:`recentre_nodes`). A piece that ends at the start of a branch is that branch's base
+    instead: the branch's junction moves down to the piece's lower end.
 
     points : (N, 3) all Gaussians; idx : (M,) the stem Gaussians' indices into points (sorted);
-    G : (M, M) their neighbour graph; g : (M,) geodesic distance from the base (inf: unreached).
+    G : (M, M) their neighbour graph; g : (M,) geodesic distance from the base (inf: unreached);
+    w0 : level width of the thin tubes (default ``level_width``; wider on a sparse capture).
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -530,7 +537,7 @@ def _missed_tubes(sk: Skeleton, points: np.ndarray, idx: np.ndarray, G, g: np.nd
     loc = np.searchsorted(idx, sk.members)                     # members -> rows of G
     res = _skeleton_residual(sk, points[sk.members])
     sigma = 1.4826 * float(np.median(np.abs(res)))
-    w0 = float(params.level_width)
+    w0 = float(params.level_width) if w0 is None else float(w0)
     r_near = sk.spread[sk.member_node]
     tau = max(3.0 * sigma, 0.25 * w0)
     # off every tube's surface: outside it, or deep inside it (the hidden base of a branch that
@@ -1099,9 +1106,7 @@ def _tubes(sk: Skeleton, areas: np.ndarray, points: np.ndarray, params: StemPara
             pts[0] = node_pos.get(int(chain[0]), pts[0])
             wt[0] = 1e3 * wt.max()
         if len(pts) >= 2:
-            r_med = float(np.median(sk.spread[chain[1:] if is_branch else chain]))
-            sm = _smooth_curve(pts, wt, max(float(params.axis_smoothing) * w,
-                                            float(params.axis_radius_smoothing) * r_med))
+            sm = _smooth_curve(pts, wt, float(params.axis_smoothing) * w)
         else:
             sm = pts
         if is_branch:

@@ -253,3 +253,77 @@ def test_tube_seen_from_one_side_is_centred():
     assert np.median(off_axis) < 0.2 * r
     radius = 0.5 * (st.radii_start + st.radii_end)[body]
     assert abs(np.median(radius) / r - 1) < 0.15
+
+
+def _tube_gaussians(rng, axis, r, m, noise=0.0003):
+    """m points on the surface of a tube of radius r around the polyline axis (K, 3)."""
+    seg = np.diff(axis, axis=0)
+    L = np.linalg.norm(seg, axis=1)
+    i = rng.choice(len(L), m, p=L / L.sum())
+    u = rng.uniform(0, 1, m)
+    c = axis[i] + u[:, None] * seg[i]
+    t = seg[i] / L[i, None]
+    e1 = np.cross(t, [1.0, 0, 0])
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(t, e1)
+    a = rng.uniform(0, 2 * np.pi, m)
+    return c + r * (np.cos(a)[:, None] * e1 + np.sin(a)[:, None] * e2) + rng.normal(0, noise, (m, 3))
+
+
+def _cane_with_petiole(seed=3):
+    """A thick cane (r 0.025, 0.6 tall) and a thin petiole (r 0.003, 0.05 long) leaving its
+    surface at 20 degrees from it: the petiole stays within a level-set width of the cane."""
+    rng = np.random.default_rng(seed)
+    cane = np.array([[0, 0, 0.0], [0, 0, 0.6]])
+    d = np.array([np.sin(np.radians(20)), 0, np.cos(np.radians(20))])
+    p0 = np.array([0.022, 0, 0.3])
+    pet = np.stack([p0 + s * d for s in np.linspace(0, 0.05, 8)])
+    pts = np.concatenate([_tube_gaussians(rng, cane, 0.025, 9000), _tube_gaussians(rng, pet, 0.003, 400)])
+    seg = Segmentation(labels=np.zeros(len(pts), np.int32), root_index=int(np.argmin(pts[:, 2])))
+    return seg, pts, pet
+
+
+def test_thin_petiole_on_a_thick_cane_is_not_lost(monkeypatch):
+    """Level sets as wide as the cane swallow a petiole leaving it at a shallow angle; its
+    Gaussians lie off every tube and become a tube of their own that reaches its end."""
+    seg, pts, pet = _cane_with_petiole()
+    st = build_stem(seg, pts, None, StemParams())
+    assert st.info["tubes"] >= 2
+    assert np.linalg.norm(st.points - pet[-1], axis=1).min() < 0.007
+    # without the missed-tube pass the petiole's end is a cane's radius away from the mesh
+    monkeypatch.setattr(M, "_missed_tubes", lambda sk, *a, **k: sk)
+    st0 = build_stem(seg, pts, None, StemParams())
+    assert np.linalg.norm(st0.points - pet[-1], axis=1).min() > 0.01
+
+
+def test_branch_is_as_thick_as_itself_at_the_junction():
+    """The petiole's first ring is its own radius, not the cane's: no cone sticks out of the cane."""
+    seg, pts, pet = _cane_with_petiole()
+    st = build_stem(seg, pts, None, StemParams())
+    firsts = [e for e in range(len(st.starts)) if st.parent[e] >= 0 and
+              np.linalg.norm(st.starts[e] - st.ends[st.parent[e]]) > 1e-6]
+    assert firsts and max(float(st.radii_start[e]) for e in firsts) < 0.01
+    # and around the junction nothing of the mesh lies farther than a few petiole radii from the
+    # cane's or the petiole's surface (the cane's rounded top aside)
+    q = st.points[st.points[:, 2] < 0.5].astype(float)
+    d_cane = np.abs(np.linalg.norm(q[:, :2], axis=1) - 0.025)
+    d_pet = np.linalg.norm(q[:, None, :] - pet[None], axis=2).min(1)
+    assert np.minimum(d_cane, d_pet).max() < 0.012
+
+
+def test_sparse_tube_has_no_spurious_forks():
+    """On a sparse capture (neighbours farther apart than the level width) the level sets are as
+    wide as the graph's reach: one bent tube stays one tube, its axis on the centreline."""
+    rng = np.random.default_rng(11)
+    s = np.linspace(0, 1, 60)
+    axis = np.stack([0.15 * np.sin(2.5 * s), 0.0 * s, 0.8 * s], 1)
+    pts = _tube_gaussians(rng, axis, 0.02, 900)
+    seg = Segmentation(labels=np.zeros(len(pts), np.int32), root_index=int(np.argmin(pts[:, 2])))
+    st = build_stem(seg, pts, None, StemParams())
+    assert st.info["tubes"] == 1
+    from scipy.spatial import cKDTree
+
+    fine = np.concatenate([np.linspace(axis[i], axis[i + 1], 10) for i in range(len(axis) - 1)])
+    mid = 0.5 * (st.starts + st.ends).astype(float)
+    body = (mid[:, 2] > 0.05) & (mid[:, 2] < 0.75)
+    assert np.percentile(cKDTree(fine).query(mid[body])[0], 90) < 0.5 * 0.02
