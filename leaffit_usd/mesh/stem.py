@@ -122,7 +122,8 @@ class StemParams:
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
                 raise ParameterError(name, "a positive number", v)
-        for name in ("prune", "axis_smoothing", "base_level_ratio", "reach_level_ratio", "leonardo_weight", "smooth_weight", "tip_length"):
+        for name in ("prune", "axis_smoothing", "base_level_ratio", "reach_level_ratio", "leonardo_weight",
+                     "smooth_weight", "tip_length"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ParameterError(name, "a number >= 0", v)
