@@ -535,119 +535,147 @@ def _missed_tubes(sk: Skeleton, points: np.ndarray, idx: np.ndarray, G, g: np.nd
 
     if len(sk.pos) < 2 or not len(sk.members):
         return sk
-    loc = np.searchsorted(idx, sk.members)                     # members -> rows of G
-    res = _skeleton_residual(sk, points[sk.members])
-    sigma = 1.4826 * float(np.median(np.abs(res)))
     w0 = float(params.level_width) if w0 is None else float(w0)
-    r_near = sk.spread[sk.member_node]
-    tau = max(3.0 * sigma, 0.25 * w0)
-    # off every tube's surface: outside it, or deep inside it (the hidden base of a branch that
-    # starts inside its parent, when the capture has Gaussians there)
-    off = (res > tau) | (res < -np.maximum(0.5 * sk.spread[sk.member_node], tau))
-    if off.sum() < 8:
-        return sk
     M = len(idx)
+    loc = np.searchsorted(idx, sk.members)                     # member slot -> row of G
     flag = np.zeros(M, bool)
-    flag[loc[off]] = True
+    flag[loc[_off_tubes(sk, points[sk.members], w0)]] = True
+    if flag.sum() < 8:
+        return sk
     Gc = G.tocoo()
     e = flag[Gc.row] & flag[Gc.col]
     _, comp = connected_components(coo_matrix((np.ones(int(e.sum())), (Gc.row[e], Gc.col[e])),
                                               shape=(M, M)), directed=False)
-    min_n = 8
     row_of = np.full(M, -1, np.int64)
-    row_of[loc] = np.arange(len(loc))                          # G row -> member slot
-    pos, par, cnt, spr = list(sk.pos), list(sk.parent), list(sk.count), list(sk.spread)
-    member_node = sk.member_node.copy()
+    row_of[loc] = np.arange(len(loc))                          # row of G -> member slot
     n0 = len(sk.pos)
     kids = sk.children()
     starts = np.asarray([c for u in range(n0) if len(kids[u]) > 1 for c in kids[u]], np.int64)
+    grow = dict(pos=list(sk.pos), par=list(sk.parent), cnt=list(sk.count), spr=list(sk.spread),
+                member_node=sk.member_node.copy())
     rows_off = np.flatnonzero(flag)
     for c in np.unique(comp[rows_off]):
         rows = rows_off[comp[rows_off] == c]
-        if len(rows) < min_n or not np.isfinite(g[rows]).all():
-            if len(rows) >= 4:
-                log.debug("stem: missed piece of %d Gaussians at %s dropped", len(rows),
-                          np.round(points[idx[rows]].mean(0), 3))
+        if len(rows) < 8 or not np.isfinite(g[rows]).all():
             continue
-        level = np.floor(g[rows] / w0).astype(np.int64)
-        sub = np.zeros(M, bool)
-        sub[rows] = True
-        lvl = np.full(M, -1, np.int64)
-        lvl[rows] = level
-        same = sub[Gc.row] & sub[Gc.col] & (lvl[Gc.row] == lvl[Gc.col])
-        _, plab = connected_components(coo_matrix((np.ones(int(same.sum())), (Gc.row[same], Gc.col[same])),
-                                                   shape=(M, M)), directed=False)
-        uniq, piece = np.unique(plab[rows], return_inverse=True)
-        k = len(uniq)
-        q = points[idx[rows]]
-        n_p = np.bincount(piece, minlength=k)
-        cen = np.stack([np.bincount(piece, weights=q[:, j], minlength=k) for j in range(3)], 1) / n_p[:, None]
-        p_lvl = np.zeros(k, np.int64)
-        p_lvl[piece] = level
-        extent = float(np.linalg.norm(cen.max(0) - cen.min(0))) if k > 1 else 0.0
-        log.debug("stem: missed piece of %d Gaussians at %s, %d level pieces, extent %.4f", len(rows),
-                  np.round(q.mean(0), 3), k, extent)
-        if extent < w0:
+        ch = _piece_chain(rows, g, Gc, points[idx[rows]], w0)
+        if ch is None:
             continue  # a patch, not a tube
-        # each piece hangs from the lower piece it touches most, the lowest from the skeleton
-        pc = np.full(M, -1, np.int64)
-        pc[rows] = piece
-        ee = sub[Gc.row] & sub[Gc.col]
-        a_, b_ = pc[Gc.row[ee]], pc[Gc.col[ee]]
-        down = p_lvl[b_] < p_lvl[a_]
-        p_par = np.full(k, -1, np.int64)
-        if down.any():
-            key, cn = np.unique(a_[down] * k + b_[down], return_counts=True)
-            o = np.lexsort((-cn, key // k))
-            first = np.r_[True, (key // k)[o][1:] != (key // k)[o][:-1]]
-            p_par[(key // k)[o][first]] = (key % k)[o][first]
-        base = len(pos)
-        old = np.asarray(pos[:base])
-        # a piece that ends at the start of a branch is that branch's base, which ran alongside
-        # its parent inside the parent's level sets: the branch starts lower down instead, on the
-        # parent's axis next to the piece's lowest end (its first segment then follows it)
-        top, low = cen[int(np.argmax(p_lvl))], cen[int(np.argmin(p_lvl))]
-        a = int(np.argmin(np.linalg.norm(old[:n0] - low, axis=1)))
-        d_st = np.linalg.norm(old[starts] - top, axis=1) if len(starts) else np.zeros(0)
-        if len(d_st) and d_st.min() <= 2.0 * w0 + spr[int(starts[np.argmin(d_st)])]:
-            v = int(starts[np.argmin(d_st)])
-            u = a
-            while u >= 0 and u != v:
-                u = int(par[u])
-            if u != v and a != par[v]:  # a is not in v's subtree
-                par[v] = a
-                continue
-        for i in np.argsort(p_lvl, kind="stable"):
-            if p_par[i] >= 0:
-                par.append(base + int(p_par[i]))
-            else:
-                par.append(int(np.argmin(np.linalg.norm(old - cen[i], axis=1))))
-            pos.append(cen[i])
-            cnt.append(int(n_p[i]))
-            pm = q[piece == i]
-            spr.append(float(np.median(np.linalg.norm(pm - cen[i], axis=1))))
-        # the pieces were appended in level order: renumber the parents accordingly
-        order = np.argsort(p_lvl, kind="stable")
-        new_id = np.empty(k, np.int64)
-        new_id[order] = base + np.arange(k)
-        for j in range(base, base + k):
-            if par[j] >= base:
-                par[j] = int(new_id[par[j] - base])
-        slots = row_of[rows]
-        member_node[slots] = new_id[piece]
-        cnt_old = np.bincount(sk.member_node[slots], minlength=base)
-        for u in np.flatnonzero(cnt_old):
-            cnt[u] = max(int(cnt[u]) - int(cnt_old[u]), 0)
-    if len(pos) == n0 and (np.asarray(par) == sk.parent).all():
+        if not _joins_branch(grow, ch, starts, n0, w0):
+            _append_chain(grow, ch, row_of[rows], sk.member_node)
+    if len(grow["pos"]) == n0 and (np.asarray(grow["par"]) == sk.parent).all():
         return sk
-    par = np.asarray(par, np.int64)
-    pos = np.asarray(pos)
-    out = Skeleton(pos=pos, parent=par, count=np.asarray(cnt, np.int64),
-                   members=sk.members, member_node=member_node, spread=np.asarray(spr))
+    pos = np.asarray(grow["pos"])
+    out = Skeleton(pos=pos, parent=np.asarray(grow["par"], np.int64), count=np.asarray(grow["cnt"], np.int64),
+                   members=sk.members, member_node=grow["member_node"], spread=np.asarray(grow["spr"]))
     new = np.zeros(len(pos), bool)
     new[n0:] = True
-    out = recentre_nodes(out, points, only=new)
-    return _reroot(out, 0)
+    return _reroot(recentre_nodes(out, points, only=new), 0)
+
+
+def _off_tubes(sk: Skeleton, q: np.ndarray, w0: float) -> np.ndarray:
+    """(M,) bool: the skeleton's member Gaussians q (M, 3) off every tube's surface, outside it
+    (farther than a quarter of ``w0`` and than three robust standard deviations of all the
+    offsets) or deep inside it (the hidden base of a branch that starts inside its parent, when
+    the capture has Gaussians there)."""
+    res = _skeleton_residual(sk, q)
+    tau = max(3.0 * 1.4826 * float(np.median(np.abs(res))), 0.25 * w0)
+    return (res > tau) | (res < -np.maximum(0.5 * sk.spread[sk.member_node], tau))
+
+
+@dataclass
+class _Chain:
+    """Level-set pieces of a group of off-tube Gaussians: rows (R,) of the neighbour graph,
+    piece (R,) of each, centroids cen (k, 3), counts n (k,), levels lvl (k,), the lower piece
+    each hangs from (k,) (-1: the skeleton), the Gaussians q (R, 3)."""
+
+    piece: np.ndarray
+    cen: np.ndarray
+    n: np.ndarray
+    lvl: np.ndarray
+    par: np.ndarray
+    q: np.ndarray
+
+
+def _piece_chain(rows: np.ndarray, g: np.ndarray, Gc, q: np.ndarray, w0: float) -> _Chain | None:
+    """The group's level sets ``w0`` wide on the geodesic distance ``g``, their connected pieces
+    and which lower piece each touches most; None when the centroids span less than ``w0``."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    M = len(g)
+    level = np.floor(g[rows] / w0).astype(np.int64)
+    sub = np.zeros(M, bool)
+    sub[rows] = True
+    lvl = np.full(M, -1, np.int64)
+    lvl[rows] = level
+    same = sub[Gc.row] & sub[Gc.col] & (lvl[Gc.row] == lvl[Gc.col])
+    _, plab = connected_components(coo_matrix((np.ones(int(same.sum())), (Gc.row[same], Gc.col[same])),
+                                              shape=(M, M)), directed=False)
+    uniq, piece = np.unique(plab[rows], return_inverse=True)
+    k = len(uniq)
+    n_p = np.bincount(piece, minlength=k)
+    cen = np.stack([np.bincount(piece, weights=q[:, j], minlength=k) for j in range(3)], 1) / n_p[:, None]
+    if k < 2 or float(np.linalg.norm(cen.max(0) - cen.min(0))) < w0:
+        return None
+    p_lvl = np.zeros(k, np.int64)
+    p_lvl[piece] = level
+    pc = np.full(M, -1, np.int64)
+    pc[rows] = piece
+    ee = sub[Gc.row] & sub[Gc.col]
+    a_, b_ = pc[Gc.row[ee]], pc[Gc.col[ee]]
+    down = p_lvl[b_] < p_lvl[a_]
+    p_par = np.full(k, -1, np.int64)
+    if down.any():
+        key, cn = np.unique(a_[down] * k + b_[down], return_counts=True)
+        o = np.lexsort((-cn, key // k))
+        first = np.r_[True, (key // k)[o][1:] != (key // k)[o][:-1]]
+        p_par[(key // k)[o][first]] = (key % k)[o][first]
+    return _Chain(piece=piece, cen=cen, n=n_p, lvl=p_lvl, par=p_par, q=q)
+
+
+def _joins_branch(grow: dict, ch: _Chain, starts: np.ndarray, n0: int, w0: float) -> bool:
+    """A chain that ends at the start of a branch (one of ``starts``, nodes < n0) is that
+    branch's base, which ran alongside its parent inside the parent's level sets: the branch is
+    re-hung from the skeleton node nearest the chain's lowest end (its first segment then
+    follows the chain). True when done."""
+    if not len(starts):
+        return False
+    pos, par, spr = np.asarray(grow["pos"][:n0]), grow["par"], grow["spr"]
+    top, low = ch.cen[int(np.argmax(ch.lvl))], ch.cen[int(np.argmin(ch.lvl))]
+    d_st = np.linalg.norm(pos[starts] - top, axis=1)
+    v = int(starts[np.argmin(d_st)])
+    if d_st.min() > 2.0 * w0 + spr[v]:
+        return False
+    a = int(np.argmin(np.linalg.norm(pos - low, axis=1)))
+    u = a
+    while u >= 0 and u != v:
+        u = int(par[u])
+    if u == v or a == par[v]:  # a in v's subtree: re-hanging would make a cycle
+        return False
+    par[v] = a
+    return True
+
+
+def _append_chain(grow: dict, ch: _Chain, slots: np.ndarray, member_node0: np.ndarray) -> None:
+    """Add the chain's pieces as nodes (in level order), the lowest hanging from the nearest
+    node; their Gaussians (member ``slots``) move to them."""
+    base = len(grow["pos"])
+    old = np.asarray(grow["pos"])
+    k = len(ch.cen)
+    order = np.argsort(ch.lvl, kind="stable")
+    new_id = np.empty(k, np.int64)
+    new_id[order] = base + np.arange(k)
+    for i in order:
+        grow["par"].append(int(new_id[ch.par[i]]) if ch.par[i] >= 0 else
+                           int(np.argmin(np.linalg.norm(old - ch.cen[i], axis=1))))
+        grow["pos"].append(ch.cen[i])
+        grow["cnt"].append(int(ch.n[i]))
+        grow["spr"].append(float(np.median(np.linalg.norm(ch.q[ch.piece == i] - ch.cen[i], axis=1))))
+    grow["member_node"][slots] = new_id[ch.piece]
+    cnt_old = np.bincount(member_node0[slots], minlength=base)
+    for u in np.flatnonzero(cnt_old):
+        grow["cnt"][u] = max(int(grow["cnt"][u]) - int(cnt_old[u]), 0)
 
 
 def _kasa_circle(q: np.ndarray) -> tuple[np.ndarray, float, float] | None:
