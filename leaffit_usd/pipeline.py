@@ -270,7 +270,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     from leaffit_usd.mesh.stem import build_stem
     from leaffit_usd.mesh.template import build_template_mesh
 
-    seg_p, fit_p, mesh_p, stem_p = o.segment, o.fit, o.mesh, o.stem
+    fit_p, mesh_p, stem_p = o.fit, o.mesh, o.stem
 
     T = _Timer(9 if o.tint else 8)
     with T.stage("load", f"loading {input_path.name}"):
@@ -283,11 +283,19 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     with T.stage("frame", "choosing the frame (up axis, root)"):
         choice = frame_from_isolation(cloud, iso, o.up, o.root, o.root_index, cloud=cloud_in)
         frame, root_index = choice.frame, choice.root_index
+        # memory: from here on the loaded cloud is needed only for its count and the classes in
+        # file order; dropping it (and, below, the isolated input-frame cloud) keeps one full
+        # copy of the Gaussians alive instead of three (~250 MB per million at SH degree 3)
+        loaded = _Loaded(len(cloud_in), encode_classes(cloud_in, iso))
+        del cloud_in
         cw = transform_cloud(cloud, frame.input_to_working)
         pts = np.asarray(cw.means, np.float64)
+        if o.edits is None:   # --edits replays its strokes on the input-frame cloud
+            cloud = _FileIds.of(cloud)
     with T.stage("segment", "segmenting leaves" if o.labels is None else f"reading labels {o.labels}"):
         seg = _segment_stage(cw, cloud, root_index, o, input_path)
         n_leaves = seg.n_leaves
+        cloud = _FileIds.of(cloud)
     with T.stage("fit", f"fitting the template to {n_leaves} leaves (K={fit_p.K}, {fit_p.steps} steps)"):
         fits = fit_leaves(cw, seg, fit_p)
     with T.stage("mesh", "building the template mesh and textures"):
@@ -299,14 +307,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         from leaffit_usd.mesh.appearance import measure_leaf_tints
         with T.stage("tint", "measuring per-leaf colour (tint)"):
             tints = measure_leaf_tints(cw, np.asarray(seg.labels), fits, template)
-    params = {
-        "segment": {**_to_dict(seg_p), "labels_file": None if o.labels is None else str(o.labels)},
-        "edits": None if o.edits is None else str(o.edits),
-        "fit": _to_dict(fit_p), "mesh": _to_dict(mesh_p), "stem": _to_dict(stem_p),
-        "up": "auto" if o.up is None else [float(c) for c in o.up],
-        "root": "auto" if o.root is None else [float(c) for c in o.root], "root_index": o.root_index, "root_gaussian": int(cloud.file_index[root_index]),
-        "isolate": iso.params,
-    }
+    params = _params_record(o, iso, int(cloud.file_index[root_index]))
     with T.stage("write", f"writing {output_path}"):
         asset = asset_from_results(
             template, fits, stem, frame, up_axis=str(o.up_axis).upper(),
@@ -329,7 +330,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
                                              for k in range(1, len(asset.lods) + 1)])
 
     report = _report(input_path, output_path, sha, result, {**T.timings, "total": round(
-        time.perf_counter() - t_start, 4)}, cloud, cloud_in, iso, fits, template, asset, frame, root_index)
+        time.perf_counter() - t_start, 4)}, cloud, loaded, iso, fits, template, asset, frame, root_index)
     report["tint"] = None if tints is None else {
         "per_leaf": np.round(tints.tints, 4).tolist(), "samples": tints.samples.tolist(),
         "space": "linear RGB gain on the template texture"}
@@ -338,6 +339,20 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
              len(result.files), all_bytes / 1024, report["sizes"]["input_bytes"] / 1024,
              report["sizes"]["compression_ratio"], report["timings"]["total"])
     return report
+
+
+def _params_record(o: ConvertOptions, iso, root_gaussian: int) -> dict:
+    """The parameters a conversion records in the stage (root_gaussian: the root's index in
+    the input file)."""
+    return {
+        "segment": {**_to_dict(o.segment), "labels_file": None if o.labels is None else str(o.labels)},
+        "edits": None if o.edits is None else str(o.edits),
+        "fit": _to_dict(o.fit), "mesh": _to_dict(o.mesh), "stem": _to_dict(o.stem),
+        "up": "auto" if o.up is None else [float(c) for c in o.up],
+        "root": "auto" if o.root is None else [float(c) for c in o.root], "root_index": o.root_index,
+        "root_gaussian": root_gaussian,
+        "isolate": iso.params,
+    }
 
 
 def _check_options(o: ConvertOptions, output_path: Path) -> None:
@@ -386,9 +401,35 @@ def _segment_stage(cw, cloud, root_index: int, o: ConvertOptions, input_path: Pa
     return seg
 
 
-def _report(input_path: Path, output_path: Path, sha: str, result, timings: dict, cloud, cloud_in,
-            iso, fits, template, asset, frame, root_index: int) -> dict:
-    """The JSON-compatible report of one conversion (see :func:`convert`)."""
+@dataclass(frozen=True)
+class _Loaded:
+    """What the report keeps of the loaded cloud once it is dropped: its Gaussian count and
+    the isolation classes in file order (:func:`encode_classes`)."""
+
+    n: int
+    classes: str
+
+
+@dataclass(frozen=True)
+class _FileIds:
+    """What the later stages and the report need of the isolated input-frame cloud once its
+    Gaussians are dropped: ``file_index`` (N,) int64 and ``file_count`` (as ``GaussianCloud``)."""
+
+    file_index: np.ndarray
+    file_count: int
+
+    @staticmethod
+    def of(cloud) -> "_FileIds":
+        return cloud if isinstance(cloud, _FileIds) else _FileIds(cloud.file_index, cloud.file_count)
+
+    def __len__(self) -> int:
+        return len(self.file_index)
+
+
+def _report(input_path: Path, output_path: Path, sha: str, result, timings: dict, cloud,
+            loaded: _Loaded, iso, fits, template, asset, frame, root_index: int) -> dict:
+    """The JSON-compatible report of one conversion (see :func:`convert`). cloud : the isolated
+    cloud (or its :class:`_FileIds`); loaded : what is kept of the loaded one."""
     in_bytes = input_path.stat().st_size
     out_bytes = output_path.stat().st_size
     all_bytes = result.total_bytes if output_path.suffix.lower() != ".usdz" else out_bytes
@@ -400,7 +441,7 @@ def _report(input_path: Path, output_path: Path, sha: str, result, timings: dict
         "timings": timings,
         "counts": {
             "gaussians": int(len(cloud)), "gaussians_in_file": int(cloud.file_count),
-            "gaussians_loaded": int(len(cloud_in)),
+            "gaussians_loaded": int(loaded.n),
             "leaves": int(asset.n_leaves), "K": int(asset.targets.shape[1]) if asset.n_leaves else int(fits.params.get("K", 0)),
             "template_label": int(fits.template_label),
             "template_vertices": int(len(asset.template_points)),
@@ -421,7 +462,7 @@ def _report(input_path: Path, output_path: Path, sha: str, result, timings: dict
         },
         "frame": {**frame.to_dict(), "root_index": int(root_index)},
         "isolation": {**iso.to_dict(), "removed": iso.removed(),
-                      "classes": encode_classes(cloud_in, iso),
+                      "classes": loaded.classes,
                       "classes_encoding": "uint8 per input Gaussian in file order (0 plant, 1 ground, "
                                           "2 pot, 3 soil, 4 background, 5 floater, 255 dropped at "
                                           "load), zlib, base64"},
