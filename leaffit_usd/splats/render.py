@@ -152,8 +152,7 @@ def render_orthographic(means, cov, colors, opacities, width: int, height: int, 
     out = torch.zeros(n_tx * n_ty, P, C + 2, dtype=dtype, device=dev)
     active = torch.nonzero(bins.per_tile).flatten()
     if active.numel():
-        tiles, res = _composite_active(active, bins, max_elements, u, v, ia, ib, ic, log_op, vals, feats)
-        out = out.index_copy(0, tiles, res)
+        _composite_active(out, active, bins, max_elements, u, v, ia, ib, ic, log_op, vals, feats)
 
     out = out.reshape(n_ty, n_tx, ts, ts, C + 2).transpose(1, 2).reshape(n_ty * ts, n_tx * ts, C + 2)
     out = out[:H, :W]
@@ -223,15 +222,17 @@ def _bin_tiles(u, v, a, c, det, z, opacities, W: int, H: int, tile, from_below: 
     return _Bins(ts, n_tx, n_ty, gid, per_tile, tstart)
 
 
-def _composite_active(active, bins: _Bins, max_elements: int, u, v, ia, ib, ic, log_op, vals, feats):
-    """Composite every active tile, in chunks of tiles with similar Gaussian counts (so padding
-    stays small). Returns (tile indices (T,), pixel values (T, P, C + 2))."""
+def _composite_active(out, active, bins: _Bins, max_elements: int, u, v, ia, ib, ic, log_op, vals,
+                      feats) -> None:
+    """Composite every active tile into ``out`` (tiles, P, C + 2), in chunks of tiles with
+    similar Gaussian counts (so padding stays small). Each chunk is copied into its tiles' rows
+    as it is done (``index_copy_``; autograd follows), so only one chunk's values are held at
+    a time besides ``out`` (a 2048^2 bake render: ~250 MB less than concatenating them)."""
     P = bins.ts * bins.ts
     counts = bins.per_tile[active]
     act_order = torch.argsort(counts)
     active, counts = active[act_order], counts[act_order].tolist()
     i = 0
-    tiles_list, res_list = [], []
     while i < active.numel():
         # grow the chunk while memory allows (counts are ascending: gmax = last count)
         # and, once the chunk is worth a call (>= 64k elements), while the padding it adds
@@ -241,11 +242,10 @@ def _composite_active(active, bins: _Bins, max_elements: int, u, v, ia, ib, ic, 
                 counts[j] <= 1.5 * counts[i] or (j - i) * P * counts[j - 1] < 65536):
             j += 1
         tiles = active[i:j]
-        res_list.append(_composite_chunk(tiles, counts[j - 1], bins.ts, bins.n_tx, bins.gid, bins.tstart,
-                                         bins.per_tile, u, v, ia, ib, ic, log_op, vals, feats))
-        tiles_list.append(tiles)
+        out.index_copy_(0, tiles, _composite_chunk(tiles, counts[j - 1], bins.ts, bins.n_tx, bins.gid,
+                                                   bins.tstart, bins.per_tile, u, v, ia, ib, ic,
+                                                   log_op, vals, feats))
         i = j
-    return torch.cat(tiles_list), torch.cat(res_list)
 
 
 def _composite_chunk(tiles, gmax, ts, n_tx, gid, tstart, per_tile, u, v, ia, ib, ic, log_op,
