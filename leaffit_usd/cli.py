@@ -73,17 +73,28 @@ class _Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
-def _commands():
+def _commands(only: str | None = None):
+    """The command modules, in ``ORDER``; only the one named ``only`` when it is a command (a
+    run of one command imports only its own module: the others pull in USD, meshing and the
+    editor, about a second of start-up that ``segment`` does not need)."""
     import leaffit_usd.commands as pkg
 
-    mods = []
-    for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda i: i.name):
-        if not info.name.startswith("_"):
-            mods.append(importlib.import_module(f"{pkg.__name__}.{info.name}"))
+    names = [i.name for i in pkgutil.iter_modules(pkg.__path__) if not i.name.startswith("_")]
+    if only in names:
+        names = [only]
+    mods = [importlib.import_module(f"{pkg.__name__}.{n}") for n in sorted(names)]
     return sorted(mods, key=lambda m: getattr(m, "ORDER", 50))
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _command_word(argv) -> str | None:
+    """The command named in ``argv`` (its first word when that is not an option), else None."""
+    args = sys.argv[1:] if argv is None else list(argv)
+    return args[0] if args and not args[0].startswith("-") else None
+
+
+def build_parser(argv=None) -> argparse.ArgumentParser:
+    """The argument parser: every command, or with ``argv`` naming one, just that command (the
+    top-level ``--help`` and an unknown command still list them all)."""
     parser = _Parser(
         prog="leaffit-usd",
         description="Turn a 3D Gaussian Splatting capture of a plant into a compact, editable "
@@ -94,7 +105,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"leaffit-usd {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for mod in _commands():
+    for mod in _commands(_command_word(argv) if argv is not None else None):
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         p.add_argument("-q", "--quiet", action="store_true", help="print only warnings and errors")
@@ -111,7 +122,8 @@ class _OneLine(logging.Formatter):
 
 
 def main(argv=None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     if not getattr(args, "command", None):
         parser.print_help()

@@ -215,3 +215,26 @@ def test_inspect_tiny_clouds(capsys, tmp_path, n):
     assert code == 0, err
     s = json.loads(out)
     assert s["gaussians"] == n and s["up"]["source"].startswith("default")
+
+
+def test_a_command_imports_only_its_own_module():
+    """``leaffit-usd segment ...`` builds the parser of ``segment`` alone: the other commands'
+    modules (USD writing, meshing, the editor) are a second of start-up it does not need. The
+    top-level help still lists every command."""
+    code = ("import sys; from leaffit_usd.cli import build_parser; "
+            "p = build_parser(['segment', 'x.ply']); "
+            "print(sorted(m for m in sys.modules if m.startswith('leaffit_usd.commands.')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=REPO).stdout
+    assert "leaffit_usd.commands.segment" in out
+    for other in ("convert", "edit", "export", "bake", "batch", "retarget"):
+        assert f"leaffit_usd.commands.{other}'" not in out
+    full = build_parser_help()
+    for name in ("convert", "segment", "edit", "export", "inspect"):
+        assert name in full
+
+
+def build_parser_help() -> str:
+    from leaffit_usd.cli import build_parser
+
+    return build_parser([]).format_help()

@@ -47,31 +47,53 @@ ORIENT_COS = 0.8     # orientation test: |n_tri . n_vertex| >= 0.8 (37 deg)
 EDGE_SIN = 0.4     # |e . n_vertex| <= 0.4: an edge leaves a tangent plane by < 24 deg
 
 
+def _principal_coordinates(points: np.ndarray) -> np.ndarray:
+    """(N, 3) float64: ``points`` (N, 3) in their own principal frame (centroid origin, axes by
+    decreasing variance, each axis signed so the third moment along it is >= 0). Rotating or
+    translating the points leaves the result unchanged up to rounding."""
+    c = points - points.mean(0)
+    _, vec = np.linalg.eigh(c.T @ c)
+    local = c @ vec[:, ::-1]
+    return local * np.where((local ** 3).sum(0) < 0, -1.0, 1.0)
+
+
 def voxel_subsample(points: np.ndarray, target: int) -> np.ndarray:
     """(M,) int64 sorted indices, one point per occupied voxel, M about ``target`` (<= N).
 
-    points : (N, 3) float. The voxel size is adapted (surface-like scaling) in a few steps; the
-    kept point of a voxel is its lowest index (deterministic).
+    points : (N, 3) float. The voxel size is adapted (surface-like scaling) in a few steps. The
+    grid is aligned with the points' principal axes (:func:`_principal_coordinates`), so a rotated
+    copy of the points gives the same subset: the segmentation does not move with a few degrees
+    of error in the estimated up axis (it did by 2-5 mIoU with a grid aligned to the frame). The
+    kept point of a voxel is the one nearest the voxel's centre (ties: the first in position
+    order), so the subsample does not depend on the order of the points either: the same
+    Gaussians in another file order give the same subset. (Keeping the first point of each voxel made the
+    blades segmentation move by up to 7 mIoU with the file order of one capture.)
     """
     points = np.asarray(points, np.float64)
     n = len(points)
     if target >= n:
         return np.arange(n, dtype=np.int64)
-    lo = points.min(0)
-    ext = np.ptp(points, 0).max() or 1.0
+    local = _principal_coordinates(points)
+    lo = local.min(0)
+    ext = np.ptp(local, 0).max() or 1.0
     size = ext / np.sqrt(target)
-    best = None
     for _ in range(8):
-        keys = np.floor((points - lo) / size).astype(np.int64)
+        keys = np.floor((local - lo) / size).astype(np.int64)
         dims = keys.max(0) + 1  # one int64 key per voxel: a 1-D unique is ~10x faster than rows
-        _, first = np.unique((keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2],
-                             return_index=True)
-        best = np.sort(first)
-        ratio = len(best) / target
+        _, inverse, counts = np.unique((keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2],
+                                       return_inverse=True, return_counts=True)
+        ratio = len(counts) / target
         if 0.9 <= ratio <= 1.15:
             break
         size *= ratio ** 0.5
-    return best.astype(np.int64)
+    # the point nearest its voxel's centre (a centroid would tie exactly in every 2-point voxel,
+    # and rounding would then break the tie differently in a rotated copy); exact ties (duplicate
+    # points) fall to the first in position order, so the file order changes no bit of the result
+    d2 = ((local - (lo + (keys + 0.5) * size)) ** 2).sum(1)
+    canon = np.lexsort(local.T[::-1])
+    order = canon[np.lexsort((d2[canon], inverse[canon]))]  # by voxel, then distance (stable)
+    first = np.flatnonzero(np.r_[True, inverse[order][1:] != inverse[order][:-1]])
+    return np.sort(order[first]).astype(np.int64)
 
 
 class GeodesicSolver:

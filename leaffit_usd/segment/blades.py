@@ -88,7 +88,7 @@ HEAT_SUBSAMPLE = 3       # the root distance's heat operator runs on every 3rd g
 class SurfaceGraph:
     """The subsampled surface and its sheet-aware neighbourhood graph.
 
-    domain : (M,) int64 Gaussian indices of the graph's points (sorted)
+    domain : (M,) int64 Gaussian indices of the graph's points (ordered by x, then y, then z)
     points : (M, 3) float64, working frame
     normals : (M, 3) float64 unit normals (a flat Gaussian's smallest axis, else local PCA)
     spacing : (M,) float64, distance to the 6th nearest domain point (working units)
@@ -134,6 +134,9 @@ def build_surface_graph(points: np.ndarray, normals: np.ndarray | None, include:
     include : (N,) bool, the Gaussians that may be graph points (floaters excluded)."""
     pool = np.flatnonzero(include)
     dom = pool[voxel_subsample(points[pool], params.domain_points)]
+    # in position order, not file order: graph ties (equal distances, merge order) then fall the
+    # same way whatever the order of the Gaussians in the file
+    dom = dom[np.lexsort(points[dom].T[::-1])]
     x = points[dom].astype(np.float64)
     m = len(x)
     kq = int(min(max(12, params.graph_k + 1), m))  # the graph's edges, spacing, PCA normals
@@ -181,17 +184,14 @@ def _tensor_ratio_within(points, normals, queries, radius, k=64) -> np.ndarray:
     """(Q,) second / first eigenvalue of ``mean n n^T`` over the (up to ``k`` nearest) ``points``
     within ``radius`` of each of ``queries`` ((Q, 3))."""
     q = len(queries)
-    d, nb = cKDTree(points).query(queries, k=int(min(k, len(points))), distance_upper_bound=radius,
-                                  workers=-1)
-    d, nb = d.reshape(q, -1), nb.reshape(q, -1)
-    rows, cols = np.nonzero(d <= radius)
-    j = nb[rows, cols]
-    iu = np.triu_indices(3)
-    count = np.maximum(np.bincount(rows, minlength=q), 1)
-    t = np.empty((q, 3, 3))
-    for a, b in zip(*iu):  # the six distinct entries of the summed n n^T
-        t[:, a, b] = t[:, b, a] = np.bincount(rows, weights=normals[j, a] * normals[j, b],
-                                              minlength=q) / count
+    kk = int(min(k, len(points)))
+    d, nb = cKDTree(points).query(queries, k=kk, distance_upper_bound=radius, workers=-1)
+    nb = nb.reshape(q, kk)
+    # neighbours beyond the radius come back as index len(points): a zero normal row
+    padded = np.concatenate([np.asarray(normals, np.float64), np.zeros((1, 3))])
+    nn = padded[nb]  # (Q, k, 3)
+    count = np.maximum((nb < len(points)).sum(1), 1)
+    t = (nn.transpose(0, 2, 1) @ nn) / count[:, None, None]  # batched 3x3: matmul, not einsum (5x)
     ev = np.linalg.eigvalsh(t)
     return ev[:, 1] / np.maximum(ev[:, 2], 1e-12)
 

@@ -128,6 +128,20 @@ def test_voxel_subsample_and_interpolation():
     assert np.allclose((W @ f)[idx], f)
 
 
+def test_voxel_subsample_ignores_point_order_and_pose():
+    """The same points in another order, or rotated, scaled and moved, give the same subset (a
+    grid in the points' own principal frame; per voxel the point nearest its centre). The first
+    point of each voxel in a frame-aligned grid fails both."""
+    rng = np.random.default_rng(3)
+    p = rng.normal(size=(20000, 3)) * [3.0, 2.0, 0.5]
+    ref = set(voxel_subsample(p, 4000).tolist())
+    perm = rng.permutation(len(p))
+    assert set(perm[voxel_subsample(p[perm], 4000)].tolist()) == ref
+    c, s_ = np.cos(0.4), np.sin(0.4)
+    rot = np.array([[c, -s_, 0], [s_, c, 0], [0, 0, 1]]) @ np.array([[1, 0, 0], [0, c, -s_], [0, s_, c]])
+    assert set(voxel_subsample(p @ rot.T * 2.5 + [4, -1, 7], 4000).tolist()) == ref
+
+
 def test_bridge_joins_a_small_gap_only():
     a = _plane(1500)
     near = _plane(1500, seed=6) + [1.15, 0, 0]   # 0.15 gap (~6 spacings)
