@@ -364,7 +364,10 @@ def isolate_plant(cloud, params: IsolateParams | None = None, up: np.ndarray | N
         return Isolation(classes, params=p_.to_dict(), timings={"total": time.perf_counter() - t_all})
 
     # 1-4 on the samples -----------------------------------------------------------------------
-    sidx = cand_idx[_sample_index(len(cand_idx), p_.sample, p_.seed)]
+    # a seeded sample of the candidates in position order (not file order): the same Gaussians
+    # in another order give the same samples, hence the same classes
+    by_position = cand_idx[np.lexsort(pts[cand_idx].T[::-1])]
+    sidx = np.sort(by_position[_sample_index(len(cand_idx), p_.sample, p_.seed)])
     scls, ground, thr, radius = _analyse_samples(pts[sidx], p_, up, timings)
 
     # every Gaussian: its sample's class, the ground plane's exact rule --------------------------

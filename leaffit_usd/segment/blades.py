@@ -13,7 +13,9 @@ of its diameter.
 
 Steps (working frame: root at the origin, +Z up, plant height 1; radii in those units):
 
-1. **Surface graph** on a uniform (voxel) subsample of about ``domain_points`` Gaussians: each
+1. **Surface graph** on a uniform (voxel) subsample of about ``domain_points`` Gaussians (a grid
+   in the points' own principal frame, per voxel the Gaussian nearest its centre: the same
+   capture in another file order or frame gives the same graph, see ``voxel_subsample``): each
    point joined to its ``graph_k`` nearest neighbours, an edge kept when it is at most 2.5 local
    spacings long (density-adaptive: the spacing is each point's own 6th-neighbour distance) and,
    between sheet points, when it stays in both tangent planes (``|e . n| <= tangent_sin``) and

@@ -220,7 +220,7 @@ def _refine(p: np.ndarray, u: np.ndarray, score: float, cones=(12.0, 6.0, 3.0, 1
 def estimate_up_with_confidence(points: np.ndarray, normals: np.ndarray | None = None) -> UpEstimate:
     """Estimate the up axis of a plant capture in an arbitrary (SfM) frame.
 
-    points : (N, 3) float, input frame (Gaussian centres). Deterministic.
+    points : (N, 3) float, input frame (Gaussian centres). Deterministic, and independent of the order of the points.
     normals : optional (N, 3) unit vectors, input frame: each Gaussian's shortest axis (see
         :meth:`GaussianCloud.shortest_axes`); adds the cue "a stem's surface normals point all round".
 
@@ -249,7 +249,9 @@ def estimate_up_with_confidence(points: np.ndarray, normals: np.ndarray | None =
         if normals.shape != p.shape:
             raise ParameterError("normals", f"shape {p.shape} like points", normals.shape)
         p = np.concatenate([p, normals], axis=1)
-    p = _remove_isolated(_subsample(p[np.isfinite(p).all(1)], _UP_SAMPLE))
+    p = p[np.isfinite(p).all(1)]
+    p = p[np.lexsort(p[:, :3].T[::-1])]  # position order: the subsamples ignore the file order
+    p = _remove_isolated(_subsample(p, _UP_SAMPLE))
     center = np.zeros(p.shape[1])
     center[:3] = p[:, :3].mean(0)
     p = p - center

@@ -225,3 +225,31 @@ def test_statistical_inliers_match_open3d():
         ref[np.asarray(ind)] = True
         assert np.array_equal(statistical_inliers(p, k, ratio), ref), (k, ratio)
     assert statistical_inliers(p[:5], 8, 1.0).all()  # too few points: all inliers
+
+
+def test_file_order_changes_nothing(tmp_path, capture):
+    """The same capture written in another order: the same plant, frame and leaves (isolation's
+    sample, the up search's samples and the segmentation's voxel graph are drawn in position
+    order). With samples drawn by file index, the plant's classes, the estimated up axis and
+    the labels all moved."""
+    from leaffit_usd.pipeline import frame_from_isolation, isolate_stage
+    from leaffit_usd.segment.auto import SegmentParams, segment_plant, working_normals
+    from leaffit_usd.splats import load_cloud, write_ply
+
+    cloud = capture[0]
+    perm = np.random.default_rng(11).permutation(len(cloud))
+    write_ply(cloud, tmp_path / "a.ply")
+    write_ply(cloud.subset(perm), tmp_path / "b.ply")
+    out = []
+    for name in ("a.ply", "b.ply"):
+        loaded = load_cloud(tmp_path / name)
+        plant, iso = isolate_stage(loaded)
+        frame = frame_from_isolation(plant, iso, cloud=loaded)
+        seg = segment_plant(frame.frame.to_working(plant.means), frame.root_index, SegmentParams(),
+                            normals=working_normals(plant, frame.frame.rotation))
+        labels = plant.to_file_order(seg.labels, fill=-1)
+        out.append((np.asarray(iso.classes) == PLANT, frame.frame.up, labels))
+    (plant_a, up_a, lab_a), (plant_b, up_b, lab_b) = out
+    assert np.array_equal(plant_a[perm], plant_b)
+    assert np.allclose(up_a, up_b, atol=1e-9)
+    assert lab_a.max() >= 3 and np.array_equal(lab_a[perm], lab_b)
