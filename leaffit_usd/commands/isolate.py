@@ -54,7 +54,7 @@ def run(args) -> int:
     from leaffit_usd.errors import InputFileError, ParameterError
     from leaffit_usd.io_util import atomic_path, atomic_write_bytes
     from leaffit_usd.isolate import CLASS_NAMES
-    from leaffit_usd.pipeline import isolate_stage
+    from leaffit_usd.isolate.stage import isolate_stage
     from leaffit_usd.splats import load_cloud, write_ply
 
     out = Path(args.output)

@@ -85,7 +85,7 @@ def params_from_args(args):
 def run(args) -> int:
     from leaffit_usd.io_util import atomic_path
     from leaffit_usd.segment.auto import segment_plant, working_normals
-    from leaffit_usd.pipeline import frame_from_isolation, isolate_stage
+    from leaffit_usd.isolate.stage import frame_from_isolation, isolate_stage
     from leaffit_usd.segment.result import DOUBTFUL_CONFIDENCE
     from leaffit_usd.splats import load_cloud
 
