@@ -93,16 +93,6 @@ def view_basis(up: np.ndarray, azimuth_deg: float, elevation_deg: float) -> np.n
     return np.stack([r, u, c])
 
 
-def render_input(cloud, R, centre, size, bounds):
-    from leaffit_usd.splats.render import render_orthographic_np
-
-    m = (np.asarray(cloud.means, np.float64) - centre) @ R.T
-    cov = np.einsum("ij,njk,lk->nil", R, cloud.covariances().astype(np.float64), R)
-    r = render_orthographic_np(m, cov, np.asarray(cloud.colors, np.float64),
-                               np.asarray(cloud.opacities, np.float64), size, size, bounds)
-    return np.asarray(r.color, np.float64), np.asarray(r.alpha, np.float64) > 0.5
-
-
 def render_asset(scene, R, centre, size, bounds):
     """The asset seen through R: (H, W, 3) colours (sRGB, premultiplied on black), (H, W) mask."""
     from leaffit_usd.edit.raster import rasterize
@@ -128,7 +118,7 @@ def render_asset(scene, R, centre, size, bounds):
             cc = np.clip((uv[sel, 0] * W).astype(int), 0, W - 1)
             rr = np.clip(((1 - uv[sel, 1]) * H).astype(int), 0, H - 1)
             col[sel] = tex[rr, cc, :3]
-            alpha[sel] = tex[rr, cc, 3]
+            alpha[sel] = tex[rr, cc, 3] if tex.shape[2] == 4 else 1.0   # a JPEG has no cut-out
         if scene.get("tints") is not None:   # the material's per-leaf gain, in linear RGB
             g = scene["tints"][scene["face_leaf"][f[is_leaf]]]
             lin = np.where(col <= 0.04045, col / 12.92, ((col + 0.055) / 1.055) ** 2.4) * g
@@ -143,6 +133,135 @@ def render_asset(scene, R, centre, size, bounds):
     img[rows[keep], cols[keep]] = out[keep]
     mask[rows[~keep], cols[~keep]] = False
     return img, mask
+
+
+def input_density(means: np.ndarray, k: int = 8) -> np.ndarray:
+    """(N,) areal density of the Gaussians around each centre (per unit area, input units): k over
+    the area of the disc reaching the k-th nearest other centre (the centres sample surfaces)."""
+    from scipy.spatial import cKDTree
+
+    d, _ = cKDTree(means).query(means, k + 1)
+    return k / (np.pi * np.maximum(d[:, -1], 1e-12) ** 2)
+
+
+def surface_gaussians(P, F, means, cov, opac, dens, seed: int = 0):
+    """A triangle surface (P (V, 3), F (G, 3)) re-expressed as the input's kind of splats.
+
+    Samples are drawn uniformly by area with the local density ``dens`` of the input Gaussians
+    nearest to each face (so the surface gets as many splats as the input has there); each takes
+    the covariance and opacity of the input Gaussian nearest to it (the same footprint), turned
+    so its shortest axis (the splat's normal) lies along the face's normal. Deterministic.
+
+    Returns (means (n, 3), cov (n, 3, 3), opacities (n,), face (n,) int, bary (n, 3), normals (n, 3)
+    unit face normals as the faces wind).
+    """
+    from scipy.spatial import cKDTree
+
+    P, F = np.asarray(P, np.float64), np.asarray(F, np.int64)
+    e1, e2 = P[F[:, 1]] - P[F[:, 0]], P[F[:, 2]] - P[F[:, 0]]
+    cr = np.cross(e1, e2)
+    area = 0.5 * np.linalg.norm(cr, axis=1)
+    nf = cr / np.maximum(2 * area, 1e-300)[:, None]
+    tree = cKDTree(means)
+    _, j = tree.query(P[F].mean(1))
+    w = area * dens[j]
+    n = int(round(float(w.sum())))
+    if n == 0:
+        z = np.zeros((0, 3))
+        return z, np.zeros((0, 3, 3)), np.zeros(0), np.zeros(0, np.int64), z, z
+    rng = np.random.default_rng(seed)
+    fi = rng.choice(len(F), n, p=w / w.sum())
+    r1, r2 = rng.uniform(size=n), rng.uniform(size=n)
+    s1 = np.sqrt(r1)
+    bary = np.stack([1 - s1, s1 * (1 - r2), s1 * r2], 1)
+    pos = np.einsum("nk,nkd->nd", bary, P[F[fi]])
+    _, j = tree.query(pos)
+    C = cov[j]
+    _, vec = np.linalg.eigh(C)
+    n_in, n_to = vec[:, :, 0], nf[fi]
+    n_to = np.where((np.einsum("nd,nd->n", n_in, n_to) < 0)[:, None], -n_to, n_to)
+    v = np.cross(n_in, n_to)                      # Rodrigues: the rotation taking n_in to n_to
+    c = np.einsum("nd,nd->n", n_in, n_to)
+    K = np.zeros((n, 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -v[:, 2], v[:, 1], -v[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = v[:, 2], -v[:, 1], v[:, 0]
+    Q = np.eye(3)[None] + K + np.einsum("nij,njk->nik", K, K) / (1 + np.maximum(c, -0.999999))[:, None, None]
+    return pos, np.einsum("nij,njk,nlk->nil", Q, C, Q), opac[j], fi, bary, nf[fi]
+
+
+def _texture_at(tex: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    H, W = tex.shape[:2]
+    cc = np.clip((uv[:, 0] * W).astype(int), 0, W - 1)
+    rr = np.clip(((1 - uv[:, 1]) * H).astype(int), 0, H - 1)
+    t = tex[rr, cc]
+    return t if t.shape[1] == 4 else np.concatenate([t[:, :3], np.ones((len(t), 1))], 1)
+
+
+def _tinted(col: np.ndarray, gain) -> np.ndarray:
+    """sRGB colours (n, 3) x a linear-RGB gain (n, 3), back to sRGB."""
+    lin = np.where(col <= 0.04045, col / 12.92, ((col + 0.055) / 1.055) ** 2.4) * gain
+    lin = np.clip(lin, 0.0, 1.0)
+    return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
+
+
+def asset_splats(scene: dict, means, cov, opac, dens, seed: int = 0) -> dict:
+    """The asset's surface as splats of the input's footprint (:func:`surface_gaussians`): the
+    leaves' front sheet (one sheet: a leaf's two textures are its two sides) with the front and
+    back texture colours (x tint) at each sample and the alpha cut-out (samples where the
+    texture's alpha < 0.5 dropped), the stem with its vertex colours."""
+    kind = scene["face_kind"]
+    sel = np.flatnonzero(kind != 1)             # front leaf faces and the stem
+    F = scene["faces"][sel]
+    pos, C, op, fi, bary, nrm = surface_gaussians(scene["points"], F, means, cov, opac, dens, seed)
+    f = sel[fi]
+    leaf = kind[f] == 0
+    front = np.zeros((len(pos), 3))
+    back = np.zeros((len(pos), 3))
+    keep = np.ones(len(pos), bool)
+    if leaf.any():
+        uv = np.einsum("pk,pkc->pc", bary[leaf], scene["uvs"][scene["faces"][f[leaf]]])
+        tf = _texture_at(scene["textures"][0], uv)
+        tb = _texture_at(scene["textures"][1], np.stack([1.0 - uv[:, 0], uv[:, 1]], 1))
+        cf, cb = tf[:, :3], tb[:, :3]
+        if scene.get("tints") is not None:
+            g = scene["tints"][scene["face_leaf"][f[leaf]]]
+            cf, cb = _tinted(cf, g), _tinted(cb, g)
+        front[leaf], back[leaf] = cf, cb
+        keep[np.flatnonzero(leaf)[tf[:, 3] < 0.5]] = False
+    st = ~leaf
+    if st.any():
+        col = np.einsum("pk,pkc->pc", bary[st], scene["colors"][scene["faces"][f[st]]])
+        front[st] = back[st] = col
+    return dict(means=pos[keep], cov=C[keep], opac=op[keep], front=front[keep], back=back[keep],
+                normals=nrm[keep], leaf=leaf[keep])
+
+
+def texture_leaf_coverage(asset, tex: np.ndarray) -> float:
+    """Fraction of the front texture's texels that show leaf: inside the front sheet's UV
+    triangles and, when the texture has alpha, with alpha > 0.5 (the cut-out)."""
+    from leaffit_usd.edit.raster import rasterize
+
+    H, W = tex.shape[:2]
+    side = np.asarray(asset.template_side, np.int64)
+    F = np.asarray(asset.template_faces, np.int64)
+    F = F[(side[F] == 0).all(1)]
+    uv = np.asarray(asset.template_uvs, np.float64)
+    pts = np.column_stack([uv * [W, H], np.zeros(len(uv))])
+    m = rasterize(pts, F, W, H, (0.0, float(W), 0.0, float(H))).mask   # row 0 = v 1, as images
+    if tex.shape[2] == 4:
+        m &= tex[..., 3] > 0.5
+    return float(m.mean())
+
+
+def render_splats(means, cov, colors, opac, R, centre, size, bounds):
+    """(H, W, 3) colours (premultiplied on black) and (H, W) alpha of splats seen through R."""
+    from leaffit_usd.splats.render import render_orthographic_np
+
+    m = (np.asarray(means, np.float64) - centre) @ R.T
+    c = np.einsum("ij,njk,lk->nil", R, np.asarray(cov, np.float64), R)
+    r = render_orthographic_np(m, c, np.asarray(colors, np.float64), np.asarray(opac, np.float64),
+                               size, size, bounds)
+    return np.asarray(r.color, np.float64), np.asarray(r.alpha, np.float64)
 
 
 def ssim_map(a: np.ndarray, b: np.ndarray, sigma: float = 1.5) -> np.ndarray:
@@ -226,7 +345,7 @@ def run_plant(d: Path, work: Path, size: int, pictures: Path | None, tag: str,
     cloud = load_cloud(d / "point_cloud.ply")
     row = dict(set=tag, plant=name, leaves=int(asset.n_leaves), convert_s=round(t_convert, 1),
                stem_vertices=int(len(asset.stem_points)),
-               texture_coverage=float(report["mesh_report"].get("alpha_coverage_front", float("nan"))))
+               texture_coverage=texture_leaf_coverage(asset, scene["textures"][0]))
     # surface errors (external evaluator)
     if (SHARED / "eval_deform.py").is_file():
         sys.path.insert(0, str(SHARED))
@@ -251,56 +370,123 @@ def run_plant(d: Path, work: Path, size: int, pictures: Path | None, tag: str,
     # scene clutter, -2, are what conversion removes on purpose)
     plant_cloud = cloud.subset(np.flatnonzero(lab >= 0))
     centre = 0.5 * (plant_pts.min(0) + plant_pts.max(0))
-    ious, psnrs, ssims = [], [], []
+    in_means = np.asarray(plant_cloud.means, np.float64)
+    in_cov = plant_cloud.covariances().astype(np.float64)
+    in_op = np.asarray(plant_cloud.opacities, np.float64)
+    in_col = np.asarray(plant_cloud.colors, np.float64)
+    dens = input_density(in_means)
+    spl = asset_splats(scene, in_means, in_cov, in_op, dens)
+    with np.load(gtp) as z:
+        gv, gf = np.asarray(z["leaf_vertices"], np.float64), np.asarray(z["leaf_faces"], np.int64)
+    gt = surface_gaussians(gv, gf, in_means, in_cov, in_op, dens, seed=1)
+    in_leaf = lab[lab >= 0] > 0
+    grey = lambda n: np.full((n, 3), 0.5)  # noqa: E731 - silhouettes only
+    ious, ious_raster, psnrs, ssims, leaf_as, leaf_gt = [], [], [], [], [], []
+    iou = lambda a, b: float((a & b).sum() / max((a | b).sum(), 1))  # noqa: E731
     for v in range(N_VIEWS):
         R = view_basis(up, 360.0 * v / N_VIEWS, ELEVATION)
         from leaffit_usd.splats.render import fit_bounds
 
         q = (plant_pts - centre) @ R.T
         bounds = fit_bounds(q, size, size, 0.05)
-        img_in, m_in = render_input(plant_cloud, R, centre, size, bounds)
-        img_as, m_as = render_asset(scene, R, centre, size, bounds)
+        img_in, a_in = render_splats(in_means, in_cov, in_col, in_op, R, centre, size, bounds)
+        m_in = a_in > 0.5
+        facing = spl["normals"] @ R[2] > 0      # the side of each leaf sample the camera sees
+        col = np.where(facing[:, None], spl["front"], spl["back"])
+        img_as, a_as = render_splats(spl["means"], spl["cov"], col, spl["opac"], R, centre, size, bounds)
+        m_as = a_as > 0.5
         union = m_in | m_as
-        ious.append(float((m_in & m_as).sum() / max(union.sum(), 1)))
+        ious.append(iou(m_in, m_as))
+        img_raster, m_raster = render_asset(scene, R, centre, size, bounds)
+        ious_raster.append(iou(m_in, m_raster))
         mse = float(((img_in - img_as) ** 2)[union].mean())
         psnrs.append(10 * np.log10(1.0 / max(mse, 1e-12)))
         ssims.append(float(ssim_map(img_in, img_as)[union].mean()))
+        # leaves alone: the asset's leaves and the true leaf surface, both as splats, against
+        # the input's leaf Gaussians (the true surface's score is what the comparison allows)
+        _, a_il = render_splats(in_means[in_leaf], in_cov[in_leaf], grey(int(in_leaf.sum())),
+                                in_op[in_leaf], R, centre, size, bounds)
+        _, a_al = render_splats(spl["means"][spl["leaf"]], spl["cov"][spl["leaf"]],
+                                grey(int(spl["leaf"].sum())), spl["opac"][spl["leaf"]], R, centre,
+                                size, bounds)
+        _, a_gl = render_splats(gt[0], gt[1], grey(len(gt[0])), gt[2], R, centre, size, bounds)
+        leaf_as.append(iou(a_il > 0.5, a_al > 0.5))
+        leaf_gt.append(iou(a_il > 0.5, a_gl > 0.5))
         if pictures is not None and v in (0, 2):
             from leaffit_usd.image_io import write_image
 
             pictures.mkdir(parents=True, exist_ok=True)
-            pair = np.concatenate([img_in, np.ones((size, 4, 3)), img_as], 1)
+            pair = np.concatenate([img_in, np.ones((size, 4, 3)), img_raster], 1)
             rgba = np.concatenate([pair, np.ones(pair.shape[:2] + (1,))], 2)
             write_image(pictures / f"render_{name}_view{v}.png",
                         np.clip(np.round(rgba * 255), 0, 255).astype(np.uint8))
+    row.update(iou_raster_min=min(ious_raster), iou_raster_mean=float(np.mean(ious_raster)),
+               leaf_iou_asset=float(np.mean(leaf_as)), leaf_iou_gt=float(np.mean(leaf_gt)),
+               asset_splats=int(len(spl["means"])), input_gaussians=int(len(in_means)))
     row.update(iou_min=min(ious), iou_mean=float(np.mean(ious)), psnr=float(np.mean(psnrs)),
                ssim=float(np.mean(ssims)), iou_views=[round(x, 4) for x in ious])
     return row
 
 
+COLS = [("set", "set", "{}", 7), ("plant", "plant", "{}", 17), ("IoU min", "iou_min", "{:.3f}", 8),
+        ("IoU mean", "iou_mean", "{:.3f}", 9), ("raster min", "iou_raster_min", "{:.3f}", 11),
+        ("leaf IoU", "leaf_iou_asset", "{:.3f}", 9), ("GT leaf", "leaf_iou_gt", "{:.3f}", 8),
+        ("PSNR", "psnr", "{:.2f}", 7), ("SSIM", "ssim", "{:.3f}", 6),
+        ("leaf Corr", "leaf_corr", "{:.4f}", 10), ("leaf HD", "leaf_hd", "{:.4f}", 8),
+        ("leaf OE", "leaf_oe", "{:.4f}", 8), ("stem Corr", "stem_corr", "{:.4f}", 10),
+        ("stem HD", "stem_hd", "{:.4f}", 8), ("tex cov", "texture_coverage", "{:.2f}", 8)]
+MIN_KEYS = ("iou_min", "iou_raster_min")
+LEGEND = ("(IoU: input 3DGS vs the asset re-expressed as splats of the input's footprint, alpha > "
+          "0.5, worst / mean of 8 views; raster min: vs the asset drawn as a surface; leaf IoU / GT "
+          "leaf: leaves alone, the asset's / the true leaf surface's splats vs the input's leaf "
+          "Gaussians, mean of the views; PSNR/SSIM inside the union of both silhouettes; surface "
+          "errors x10 of plant height; stem Corr = mean distance asset stem -> true tube surface; "
+          "tex cov = texels of the front texture with leaf)")
+
+
+def _cell(v, f: str, w: int) -> str:
+    return f"{(f.format(v) if v is not None else '-'):>{w}s}"
+
+
 def fmt(rows: list[dict]) -> str:
-    cols = [("set", "{}", 7), ("plant", "{}", 17), ("IoU min", "{:.3f}", 8), ("IoU mean", "{:.3f}", 9),
-            ("PSNR", "{:.2f}", 7), ("SSIM", "{:.3f}", 6), ("leaf Corr", "{:.4f}", 10), ("leaf HD", "{:.4f}", 8),
-            ("leaf OE", "{:.4f}", 8), ("stem Corr", "{:.4f}", 10), ("stem HD", "{:.4f}", 8),
-            ("tex cov", "{:.2f}", 8)]
-    keys = ["set", "plant", "iou_min", "iou_mean", "psnr", "ssim", "leaf_corr", "leaf_hd", "leaf_oe",
-            "stem_corr", "stem_hd", "texture_coverage"]
-    lines = ["".join(f"{h:>{w}s}" for h, _, w in cols)]
+    lines = ["".join(f"{h:>{w}s}" for h, _, _, w in COLS)]
     for r in rows:
-        cells = []
-        for (h, f, w), k in zip(cols, keys):
-            v = r.get(k)
-            cells.append(f"{(f.format(v) if v is not None else '-'):>{w}s}")
-        lines.append("".join(cells))
+        lines.append("".join(_cell(r.get(k), f, w) for _, k, f, w in COLS))
     for tag in sorted({r["set"] for r in rows}):
         rs = [r for r in rows if r["set"] == tag]
         cells = [f"{tag:>7s}", f"{'mean':>17s}"]
-        for (h, f, w), k in list(zip(cols, keys))[2:]:
+        for _, k, f, w in COLS[2:]:
             vals = [r[k] for r in rs if r.get(k) is not None]
-            cells.append(f"{(f.format(min(vals) if k == 'iou_min' else float(np.mean(vals))) if vals else '-'):>{w}s}")
+            cells.append(_cell((min(vals) if k in MIN_KEYS else float(np.mean(vals))) if vals else None, f, w))
         lines.append("".join(cells))
-    lines.append("(IoU min: worst of 8 views; PSNR/SSIM inside the union of both silhouettes; surface "
-                 "errors x10 of plant height; stem Corr = mean distance asset stem -> true tube surface)")
+    lines.append(LEGEND)
+    lines.append("IoU per view (azimuth 0, 45, ... 315 degrees):")
+    lines += [f"{r['plant']} {r['iou_views']}" for r in rows]
+    return "\n".join(lines)
+
+
+def fmt_compare(before: list[dict], after: list[dict]) -> str:
+    """Before | after of the render metrics and texture coverage, per plant both runs have."""
+    keys = [("IoU min", "iou_min", "{:.3f}"), ("IoU mean", "iou_mean", "{:.3f}"),
+            ("PSNR", "psnr", "{:.2f}"), ("SSIM", "ssim", "{:.3f}"), ("leaf OE", "leaf_oe", "{:.4f}"),
+            ("tex cov", "texture_coverage", "{:.2f}")]
+    w = 17
+    lines = [f"{'set':>7s}{'plant':>17s}" + "".join(f"{h + ' b|a':>{w}s}" for h, _, _ in keys)]
+    bmap = {(r["set"], r["plant"]): r for r in before}
+    pairs = [(bmap[(r["set"], r["plant"])], r) for r in after if (r["set"], r["plant"]) in bmap]
+    def both(b, a, k, f):
+        g = lambda r: f.format(r[k]) if r.get(k) is not None else "-"  # noqa: E731
+        return f"{g(b) + ' | ' + g(a):>{w}s}"
+    for b, a in pairs:
+        lines.append(f"{a['set']:>7s}{a['plant']:>17s}" + "".join(both(b, a, k, f) for _, k, f in keys))
+    for tag in sorted({a["set"] for _, a in pairs}):
+        ps = [(b, a) for b, a in pairs if a["set"] == tag]
+        agg = {}
+        for side, rs in (("b", [b for b, _ in ps]), ("a", [a for _, a in ps])):
+            agg[side] = {k: (min if k == "iou_min" else np.mean)([r[k] for r in rs if r.get(k) is not None] or [np.nan])
+                         for _, k, _ in keys}
+        lines.append(f"{tag:>7s}{'mean':>17s}" + "".join(both(agg["b"], agg["a"], k, f) for _, k, f in keys))
+    lines.append("(before | after; IoU as in the table above; IoU min of a set = its worst view)")
     return "\n".join(lines)
 
 
@@ -314,7 +500,19 @@ def main(argv=None) -> int:
     ap.add_argument("--reuse", action="store_true",
                     help="render the stages an earlier run left in --work instead of converting again")
     ap.add_argument("--out", default=str(RESULTS / "render.json"))
+    ap.add_argument("--from-json", default=None,
+                    help="comma-separated results JSONs of earlier runs: print their joined table "
+                         "(and --compare) without rendering")
+    ap.add_argument("--compare", default=None,
+                    help="a results JSON of an earlier stage (the 'before'): print before | after")
     args = ap.parse_args(argv)
+    if args.from_json:
+        rows = [r for f in args.from_json.split(",") for r in json.loads(Path(f).read_text())["rows"]]
+        print(fmt(rows))
+        if args.compare:
+            before = [r for f in args.compare.split(",") for r in json.loads(Path(f).read_text())["rows"]]
+            print(fmt_compare(before, rows))
+        return 0
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="leaffit_render_"))
     sets = [s.strip() for s in args.sets.split(",") if s.strip()]
     plants = []
@@ -344,6 +542,9 @@ def main(argv=None) -> int:
               f"leaf Corr {row.get('leaf_corr', float('nan')):.4f} OE {row.get('leaf_oe', float('nan')):.4f}",
               flush=True)
     print(fmt(rows))
+    if args.compare:
+        before = [r for f in args.compare.split(",") for r in json.loads(Path(f).read_text())["rows"]]
+        print(fmt_compare(before, rows))
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     from leaffit_usd.io_util import atomic_write_bytes
 

@@ -33,6 +33,9 @@ class MeshParams:
         box-filters down (premultiplied), then divides by the accumulated alpha
     clean_outline : re-triangulate the sheet inside a smooth outline curve (constrained
         Delaunay, :func:`surface.remesh_sheet`); the fine serration stays in the alpha cut-out
+    outline_grow : the clean outline moves out to the template splats' silhouette (alpha =
+        ``alpha_threshold``), at most this many sample spacings (:mod:`.outline_fit`; the
+        Gaussians' centres stop short of the leaf's edge); 0 = the outline stays on the centres
     lod_vertices : vertex budgets of the coarser levels of detail (per side)
     alpha_threshold : splat coverage at which the cut-out edge lies
     min_coverage : smallest fraction of the sheet's silhouette a side's splats must cover
@@ -51,6 +54,7 @@ class MeshParams:
     chart_min_width: float = 0.3
     supersample: int = 2
     clean_outline: bool = True
+    outline_grow: float = 6.0
     lod_vertices: tuple = (512, 128)
     alpha_threshold: float = 0.5
     min_coverage: float = 0.6
@@ -75,7 +79,7 @@ class MeshParams:
             raise ParameterError("bake_gaussians", "an integer >= 0 (0 = all)", self.bake_gaussians)
         if not all(isinstance(n, (int, np.integer)) and n >= 8 for n in tuple(self.lod_vertices)):
             raise ParameterError("lod_vertices", "integers >= 8", self.lod_vertices)
-        for name, lo, hi in (("alpha", 0.5, 100.0), ("texture_margin", 0.0, 0.45),
+        for name, lo, hi in (("alpha", 0.5, 100.0), ("texture_margin", 0.0, 0.45), ("outline_grow", 0.0, 10.0),
                              ("alpha_threshold", 0.01, 0.99), ("chart_min_width", 0.05, 1.0),
                              ("min_coverage", 0.0, 1.0)):
             v = getattr(self, name)

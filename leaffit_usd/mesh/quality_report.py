@@ -13,9 +13,14 @@ from leaffit_usd.mesh.template_gaussians import template_gaussians_local
 log = logging.getLogger("leaffit_usd")
 
 
-def quality_report(mesh: TemplateMesh, cloud_working, fits, sheet, checks, tinfo, chart, params) -> dict:
-    """Plain-JSON quality figures of a template mesh (distances relative to the leaf length)."""
+def quality_report(mesh: TemplateMesh, cloud_working, fits, sheet, checks, tinfo, chart, params,
+                   rotation=None) -> dict:
+    """Plain-JSON quality figures of a template mesh (distances relative to the leaf length).
+
+    rotation : (3, 3) template -> sheet view (the frame the chart reads), None = identity."""
     P, F = mesh.sheet_points.astype(np.float64), mesh.sheet_faces.astype(np.int64)
+    R = np.eye(3) if rotation is None else np.asarray(rotation, np.float64)
+    Pv = P @ R.T                       # the sheet as the chart sees it
     pts = np.asarray(fits.template_points, np.float64)
     pts = pts[np.isfinite(pts).all(1)]
     leaf_len = float(np.ptp(pts[:, 0])) if len(pts) else 1.0
@@ -51,7 +56,7 @@ def quality_report(mesh: TemplateMesh, cloud_working, fits, sheet, checks, tinfo
         # planar-UV stretch: 3D edge length / (xy edge length)
         e = F[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
         l3 = np.linalg.norm(P[e[:, 0]] - P[e[:, 1]], axis=1)
-        l2 = np.linalg.norm(P[e[:, 0], :2] - P[e[:, 1], :2], axis=1)
+        l2 = np.linalg.norm(Pv[e[:, 0], :2] - Pv[e[:, 1], :2], axis=1)
         stretch = l3 / np.maximum(l2, 1e-12)
         rep["uv_stretch_max"] = float(stretch.max())
         rep["uv_stretch_p99"] = float(np.percentile(stretch, 99))
@@ -60,11 +65,12 @@ def quality_report(mesh: TemplateMesh, cloud_working, fits, sheet, checks, tinfo
     rep.update({k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in tinfo.items()})
     rep["texture_size"] = int(params.texture_size)
     rep["uv_chart"] = chart.kind
+    rep["sheet_view_tilt_deg"] = float(np.degrees(np.arccos(np.clip(R[2, 2], -1.0, 1.0))))
     rep["uv_bounds"] = [float(b) for b in chart.bounds]
     if len(F):
         # the texels between vertices follow the uv interpolated linearly, not the chart's map:
         # the largest gap at the triangles' centroids, in texels
-        cen = P[F].mean(1)
+        cen = Pv[F].mean(1)
         interp = mesh.uvs[: len(P)][F].astype(np.float64).mean(1)
         gap = np.abs(interp - chart.uv(cen[:, :2])) * float(params.texture_size)
         rep["uv_interpolation_texels_max"] = float(gap.max())

@@ -631,8 +631,50 @@ def _simple_polygon(poly: np.ndarray) -> bool:
     return True
 
 
+def _extrapolate_z(P: np.ndarray, q: np.ndarray, k: int = 12) -> np.ndarray:
+    """(M,) heights at xy points ``q`` (M, 2) off a height-field sheet (vertices P (S, 3)): the
+    least-squares plane of the k vertices nearest in xy, evaluated at each point."""
+    from scipy.spatial import cKDTree
+
+    if len(q) == 0:
+        return np.zeros(0)
+    k = min(k, len(P))
+    _, idx = cKDTree(P[:, :2]).query(q, k)
+    idx = np.asarray(idx).reshape(len(q), k)
+    nb = P[idx]                                            # (M, k, 3)
+    c = nb.mean(1)
+    A = np.concatenate([nb[:, :, :2] - c[:, None, :2], np.ones((len(q), k, 1))], 2)
+    AtA = np.einsum("mki,mkj->mij", A, A) + 1e-12 * np.eye(3)[None]
+    Atz = np.einsum("mki,mk->mi", A, nb[:, :, 2])
+    coef = np.linalg.solve(AtA, Atz[..., None])[..., 0]     # slope x, slope y, height at c
+    d = q - c[:, :2]
+    return coef[:, 2] + (d * coef[:, :2]).sum(1)
+
+
+def _grown_outline(outline: np.ndarray, grow, step: float, iterations: int = 12) -> np.ndarray:
+    """A CCW outline (n, 2) moved out by ``grow`` (offsets along the outward normals) in
+    ``iterations`` steps of at most ``step`` each, the normals recomputed after each step (one
+    big step crosses itself where the normals of a notch converge); a step that would make the
+    polygon non-simple is halved once, then the growth stops there."""
+    for _ in range(iterations):
+        tang = np.roll(outline, -1, 0) - np.roll(outline, 1, 0)
+        nrm = np.stack([tang[:, 1], -tang[:, 0]], 1)          # outward for a CCW outline
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
+        off = np.minimum(np.asarray(grow(outline, nrm), np.float64), step)
+        if off.max() <= 0.01 * step:
+            break
+        for scale in (1.0, 0.5):
+            grown = outline + scale * off[:, None] * nrm
+            if signed_area_xy(grown) > 0 and _simple_polygon(grown):
+                break
+        else:
+            break
+        outline = grown
+    return outline
+
+
 def remesh_sheet(points: np.ndarray, faces: np.ndarray, n_vertices: int,
-                 outline_smoothing: float = 0.35) -> Sheet | None:
+                 outline_smoothing: float = 0.35, grow=None) -> Sheet | None:
     """A clean re-triangulation of a height-field sheet with about ``n_vertices`` vertices.
 
     The outer boundary of the sheet (points (S, 3), faces (G, 3), template frame, a height field
@@ -641,8 +683,14 @@ def remesh_sheet(points: np.ndarray, faces: np.ndarray, n_vertices: int,
     spacing; interior vertices are a farthest-point subset of the sheet's vertices at least half
     a spacing inside it; the constrained Delaunay triangulation of both (``triangle``, the
     outline as segments, no extra vertices) is lifted onto the old sheet (linear
-    interpolation of z over xy). Returns None when the sheet is not a height field or the
-    result is not a clean disk (the caller keeps the old sheet).
+    interpolation of z over xy; outside the old sheet, the plane of its nearest vertices).
+    Returns None when the sheet is not a height field or the result is not a clean disk (the
+    caller keeps the old sheet).
+
+    grow : optional ``grow(outline (n, 2), outward_normals (n, 2)) -> offsets (n,)``: the smooth
+        outline's vertices are moved that far along their outward normals (e.g. out to the
+        splats' silhouette, :func:`leaffit_usd.mesh.outline_fit.silhouette_grow`); ignored when
+        the grown outline is not a simple polygon.
     """
     import triangle as tr
     from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
@@ -678,10 +726,14 @@ def remesh_sheet(points: np.ndarray, faces: np.ndarray, n_vertices: int,
         outline = outline[::-1]
     if not _simple_polygon(outline):
         return None
+    if grow is not None:
+        outline = _grown_outline(outline, grow, 0.5 * h)
     inside = _points_in_polygon(P[:, :2], outline) & (_segment_distance(P[:, :2], outline) > 0.5 * h)
     cand = np.flatnonzero(inside)
     n_in = max(n_vertices - n_b, 0)
-    if len(cand) > n_in:
+    if n_in == 0:        # the outline took the whole budget (a long, ragged rim)
+        cand = cand[:0]
+    elif len(cand) > n_in:
         cand = cand[farthest_point_sampling(P[cand], n_in)]
     V2 = np.vstack([outline, P[cand, :2]])
     seg = np.stack([np.arange(n_b), (np.arange(n_b) + 1) % n_b], 1)
@@ -694,6 +746,8 @@ def remesh_sheet(points: np.ndarray, faces: np.ndarray, n_vertices: int,
     T = np.asarray(out["triangles"], np.int64)
     lin = LinearNDInterpolator(P[:, :2], P[:, 2])
     z = lin(V2)
+    off = ~_points_in_polygon(V2, ring)
+    z[off] = _extrapolate_z(P, V2[off])
     bad = ~np.isfinite(z)
     if bad.any():
         z[bad] = NearestNDInterpolator(P[:, :2], P[:, 2])(V2[bad])

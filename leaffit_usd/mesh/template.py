@@ -62,10 +62,12 @@ from leaffit_usd.mesh.params import MeshParams
 from leaffit_usd.mesh.quality_report import quality_report
 from leaffit_usd.mesh.result import TemplateLOD, TemplateMesh
 from leaffit_usd.mesh.sheet_choice import build_sheet
-from leaffit_usd.mesh.template_gaussians import template_row
+from leaffit_usd.mesh.outline_fit import silhouette_grow, splat_alpha_image
+from leaffit_usd.mesh.template_gaussians import template_gaussians_local, template_row
 from leaffit_usd.mesh.texture_bake import bake_textures
 from leaffit_usd.mesh.texture_files import to_u8, write_textures
 from leaffit_usd.mesh.uv_chart import UVChart, envelope_chart, planar_chart
+from leaffit_usd.mesh.view_frame import sheet_view_rotation
 
 log = logging.getLogger("leaffit_usd")
 
@@ -88,14 +90,21 @@ def build_template_mesh(cloud_working, fits, params: MeshParams | None = None) -
     template_row(fits)  # fail early on a LeafFits without the template's row
     idx = farthest_point_sampling(pts, int(params.vertex_budget)) if len(pts) else np.zeros(0, np.int64)
     samples = pts[idx]
+    # the sheet is built, charted and baked looking along the leaf's mean normal (the identity
+    # unless the fit's +Z is far from it: an arched strap leaf seen edge-on, view_frame.py)
+    rot = sheet_view_rotation(samples) if len(samples) else np.eye(3)
+    samples = samples @ rot.T
     timings["fps"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     sheet, checks = build_sheet(samples, params)
     timings["surface"] = time.perf_counter() - t0
     rim_sheet = sheet
     t0 = time.perf_counter()
+    grow = None
+    if params.clean_outline and len(sheet.faces) and params.outline_grow > 0:
+        grow = _silhouette_grow(cloud_working, fits, rot, samples, params)
     if params.clean_outline and len(sheet.faces):
-        clean = surf.remesh_sheet(sheet.points, sheet.faces, len(sheet.points))
+        clean = surf.remesh_sheet(sheet.points, sheet.faces, len(sheet.points), grow=grow)
         if clean is None:
             log.info("mesh: the template sheet is not a height field in its frame; keeping its "
                      "own outline")
@@ -120,34 +129,52 @@ def build_template_mesh(cloud_working, fits, params: MeshParams | None = None) -
         chart = planar_chart(P[:, :2], size, params.texture_margin, params.uv_layout)
     front, back, tinfo = bake_textures(cloud_working, fits, P, Fs, P[outer, :2], chart, size,
                                        params.alpha_threshold, params.min_coverage,
-                                       int(params.supersample), int(params.bake_gaussians))
+                                       int(params.supersample), int(params.bake_gaussians), rot)
     timings["bake"] = time.perf_counter() - t0
 
-    lod0 = two_sided(P, Fs, chart)
+    lod0 = two_sided(P, Fs, chart, rot)
     mesh = TemplateMesh(
         points=lod0.points, faces=lod0.faces, normals=lod0.normals, uvs=lod0.uvs, side=lod0.side,
         front_texture=to_u8(front), back_texture=to_u8(back),
-        sheet_points=P.astype(np.float32), sheet_faces=Fs.astype(np.int32),
+        sheet_points=(P @ rot).astype(np.float32), sheet_faces=Fs.astype(np.int32),
     )
     t0 = time.perf_counter()
-    mesh.lods = [two_sided(*lod_sheet(rim_sheet, P, Fs, int(n)), chart) for n in params.lod_vertices]
+    mesh.lods = [two_sided(*lod_sheet(rim_sheet, P, Fs, int(n), grow), chart, rot)
+                 for n in params.lod_vertices]
     timings["lods"] = time.perf_counter() - t0
-    mesh.report = quality_report(mesh, cloud_working, fits, sheet, checks, tinfo, chart, params)
+    mesh.report = quality_report(mesh, cloud_working, fits, sheet, checks, tinfo, chart, params, rot)
     mesh.report["lod_vertices_per_side"] = [int(S)] + [int(len(l.points) // 2) for l in mesh.lods]
     mesh.report["timings"] = {k: round(v, 4) for k, v in timings.items()}
     return mesh
 
 
-def two_sided(P: np.ndarray, F: np.ndarray, chart: UVChart) -> TemplateLOD:
+def _silhouette_grow(cloud_working, fits, rot, samples, params: MeshParams):
+    """The outline's growth out to the template splats' silhouette (:mod:`.outline_fit`), or
+    None without Gaussians."""
+    means, cov, _, opac = template_gaussians_local(cloud_working, fits, rot)
+    if len(means) < 3 or len(samples) < 2:
+        return None
+    max_out = float(params.outline_grow) * surf.sample_spacing(samples)
+    alpha, bounds = splat_alpha_image(means, cov, opac, pad=2.0 * max_out)
+    return silhouette_grow(alpha, bounds, float(params.alpha_threshold), max_out)
+
+
+def two_sided(P: np.ndarray, F: np.ndarray, chart: UVChart, rotation=None) -> TemplateLOD:
     """The two-sided layout of a sheet (points (S, 3), faces (G, 3)): front copy (CCW from +Z,
     normals, uv into the front texture) then back copy (reversed winding, negated normals,
-    u mirrored into the back texture)."""
+    u mirrored into the back texture).
+
+    P is in the frame the chart reads (xy); with ``rotation`` (3, 3, template -> sheet view) P is
+    in the sheet view and the points and normals are returned in the template frame."""
     P = np.asarray(P, np.float64)
     F = np.asarray(F, np.int64)
     S = len(P)
     normals = vertex_normals(P, F, undefined=(0.0, 0.0, 1.0))
     uv_front = chart.uv(P[:, :2])
     uv_back = np.stack([1.0 - uv_front[:, 0], uv_front[:, 1]], 1)
+    if rotation is not None:
+        R = np.asarray(rotation, np.float64)
+        P, normals = P @ R, normals @ R
     return TemplateLOD(points=np.concatenate([P, P]).astype(np.float32),
                        faces=np.concatenate([F, F[:, ::-1] + S]).astype(np.int32),
                        normals=np.concatenate([normals, -normals]).astype(np.float32),
@@ -155,14 +182,15 @@ def two_sided(P: np.ndarray, F: np.ndarray, chart: UVChart) -> TemplateLOD:
                        side=np.concatenate([np.zeros(S, np.uint8), np.ones(S, np.uint8)]))
 
 
-def lod_sheet(rim_sheet, P: np.ndarray, F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+def lod_sheet(rim_sheet, P: np.ndarray, F: np.ndarray, n: int, grow=None) -> tuple[np.ndarray, np.ndarray]:
     """A coarser sheet of about ``n`` vertices: the clean-outline re-triangulation of the
-    surface, or (not a height field) open3d's quadric decimation of the LOD0 sheet."""
+    surface (its outline grown as LOD0's, ``grow``), or (not a height field) open3d's quadric
+    decimation of the LOD0 sheet."""
     if n >= len(P):
         return P, F
     src = rim_sheet if len(rim_sheet.faces) else None
     if src is not None:
-        lod = surf.remesh_sheet(src.points, src.faces, n)
+        lod = surf.remesh_sheet(src.points, src.faces, n, grow=grow)
         if lod is not None:
             return lod.points, lod.faces
     import open3d as o3d

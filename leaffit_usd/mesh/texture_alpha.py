@@ -52,10 +52,12 @@ def side_texture(color: np.ndarray, alpha: np.ndarray, thr: float, sheet_mask: n
 
     rim = (distance_transform_edt(~solid) <= 1.5) & ~solid if solid.any() else np.zeros_like(solid)
     a = np.where(solid, 1.0, np.where(rim, np.clip(alpha / thr, 0.0, 1.0), 0.0))
-    # nothing outside the sheet is ever drawn: keep alpha within the sheet's silhouette (+2 texels)
-    # so splats beyond the rim (or stray ones) never reach the image border
+    # nothing outside the sheet is ever drawn: keep alpha within the sheet's silhouette (+1 texel,
+    # the bilinear rim) so splats beyond the rim (or stray ones) never reach the image border; the
+    # outline itself lies on the whole splat set's silhouette (outline_fit.py), so a widened
+    # bake subset's softer edge does not move the cut-out
     if sheet_mask.any():
-        a = np.where(distance_transform_edt(~sheet_mask) <= 2.0, a, 0.0)
+        a = np.where(distance_transform_edt(~sheet_mask) <= 1.0, a, 0.0)
     cover = float((alpha > thr)[sheet_mask].mean()) if sheet_mask.any() else 0.0
     rgb = _dilate_colors(straight, alpha > 0.9 * thr)
     return np.concatenate([rgb, a[..., None]], -1), cover

@@ -80,7 +80,8 @@ def _bake_set(means, cov, opac, view_colors: dict, off, cap: int, chart, pixel: 
 
 def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np.ndarray,
                   outline_xy: np.ndarray, chart: UVChart, size: int, thr: float = 0.5,
-                  min_coverage: float = 0.6, supersample: int = 1, max_gaussians: int = 0):
+                  min_coverage: float = 0.6, supersample: int = 1, max_gaussians: int = 0,
+                  rotation=None):
     """Front and back RGBA float textures (H, W, 4) in [0, 1], straight alpha, row 0 = top.
 
     Colours are view-dependent: each texture evaluates the Gaussians' SH (working frame) for its
@@ -96,12 +97,14 @@ def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np
         Gaussians are carried into its coordinates and rendered over its bounds; the back texture
         is its mirror image (column c of the back = column W-1-c of the front)
     max_gaussians : at most this many Gaussians rendered, widened for the rest (:func:`bake_subset`)
+    rotation : (3, 3) template -> sheet-view frame (:mod:`leaffit_usd.mesh.view_frame`), in which
+        ``sheet_points``, ``outline_xy`` and the chart are given; None = the template frame
     Returns (front, back, info) with coverage figures and the fallback used, if any.
     """
     from leaffit_usd.splats.render import render_orthographic_np
 
-    means, cov, _, opac = template_gaussians_local(cloud_working, fits)
-    view_colors = template_view_colors(cloud_working, fits)  # view-dependent (SH) per side
+    means, cov, _, opac = template_gaussians_local(cloud_working, fits, rotation)
+    view_colors = template_view_colors(cloud_working, fits, rotation)  # view-dependent (SH) per side
     bounds = chart.bounds
     mask = rasterize_polygon(chart.polygon(outline_xy, size), size, size, bounds)
     info = {"template_gaussians": int(len(means))}

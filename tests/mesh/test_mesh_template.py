@@ -206,14 +206,20 @@ def test_mesh_value_serialises(leaf_mesh, tmp_path):
 
 def test_textures_not_mirrored_or_flipped():
     """A red (top) / blue (bottom) patch on the base half's +Y side shows up under exactly the
-    vertices of that patch in each side's texture: catches a row flip or a wrong back mirror."""
+    vertices of that patch in each side's texture: catches a row flip or a wrong back mirror.
+    Interior vertices only: the outline lies on the splats' silhouette, where a texel holds the
+    soft edge of both layers (the other side's colour shows through, as in the input)."""
+    from leaffit_usd.mesh.surface import boundary_loops
+
     cloud, fits = synthetic_leaf(2500, seed=6, marker=True)
     m = build_template_mesh(cloud, fits, MeshParams(vertex_budget=500, texture_size=96))
     S_ = len(m.points) // 2
     p = m.sheet_points
+    rim = np.zeros(len(p), bool)
+    rim[np.concatenate(boundary_loops(m.sheet_faces.astype(np.int64), len(p)))] = True
     x01 = (p[:, 0] - p[:, 0].min()) / np.ptp(p[:, 0])
-    patch = (x01 > 0.1) & (x01 < 0.3) & (p[:, 1] > 0.1)
-    mirror = (x01 > 0.1) & (x01 < 0.3) & (p[:, 1] < -0.1)
+    patch = (x01 > 0.1) & (x01 < 0.3) & (p[:, 1] > 0.1) & ~rim
+    mirror = (x01 > 0.1) & (x01 < 0.3) & (p[:, 1] < -0.1) & ~rim
     assert patch.sum() > 5 and mirror.sum() > 5
     f_in = _texel(m.front_texture, m.uvs[:S_][patch]).astype(float)
     b_in = _texel(m.back_texture, m.uvs[S_:][patch]).astype(float)
