@@ -4,26 +4,46 @@ For every plant (the committed sample plants, regenerated with their exact tube 
 the external ``paper8`` plants of ``../shared/plants`` when that folder exists), with the
 ground-truth labels, up axis and root (so the asset is judged alone, not the segmentation):
 
-1. ``convert`` (the whole pipeline, default parameters) writes the USD asset;
-2. the input Gaussians are rendered with the project's splat renderer
-   (:func:`leaffit_usd.splats.render.render_orthographic_np`), and the asset -- the evaluated
-   leaves textured with the written PNG textures, their alpha cut-out and the per-leaf tint the
-   material multiplies in (linear RGB), and the stem with its
-   vertex colours -- with the project's triangle rasteriser (:mod:`leaffit_usd.edit.raster`),
-   orthographic, 8 azimuths 45 degrees apart at 20 degrees elevation, same bounds, unlit (DC
-   colours against texture colours);
-3. per plant: silhouette IoU (input alpha > 0.5 vs asset coverage; min and mean over views;
-   the input without its floaters and scene Gaussians, which conversion removes on purpose),
-   PSNR and SSIM (Gaussian window, sigma 1.5) inside the union of both silhouettes; and the
-   surface errors against ground truth with ``../shared/plants/eval_deform.py`` (leaves: Corr-l2,
-   HD, outline error OE; stem: ``evaluate_stem``'s mean pred->GT distance and HD), x10 of
-   plant-height-normalised distances, plus the template texture's alpha coverage.
+1. ``convert`` (the whole pipeline, default parameters) writes the USD asset (``--reuse``: the
+   stage an earlier run, or another commit's code, left in ``--work``);
+2. views: orthographic, 8 azimuths 45 degrees apart at 20 degrees elevation, 384 px, the bounds
+   of the plant's Gaussians; the input is the plant's Gaussians (floaters and scene Gaussians,
+   which conversion removes on purpose, left out) through the project's splat renderer
+   (:func:`leaffit_usd.splats.render.render_orthographic_np`), DC colours;
+3. per plant: silhouette IoU (alpha > 0.5; min and mean over the views), PSNR and SSIM (Gaussian
+   window, sigma 1.5) inside the union of both silhouettes; the surface errors against ground
+   truth with ``../shared/plants/eval_deform.py`` (leaves: Corr-l2, HD, outline error OE; stem:
+   ``evaluate_stem``'s mean pred->GT distance and HD), x10 of plant-height-normalised distances;
+   the template texture's leaf coverage (texels inside the front sheet's UV triangles with
+   alpha > 0.5: the same figure for a JPEG texture without alpha).
+
+How the asset is drawn for the comparison, and why. A splat render is not a surface render: a
+Gaussian on the surface spreads its opacity past the surface's edge, so the input's alpha > 0.5
+silhouette is wider than the true surface by about a splat's footprint all round (on the
+rubber tree's 2.9 mm pixels, 1-2 px: the true leaf mesh, rasterised, scores IoU 0.84-0.91
+against the input's leaf Gaussians in the 8 views). Drawing the asset
+as a surface (the rasteriser, as before; still printed as ``raster min``) therefore scores the
+splats' spread, not the asset: even the true surface would stay under 0.9. So the asset is
+re-expressed as the input's kind of splats (:func:`asset_splats`): its surface (the leaves' front
+sheet with the alpha cut-out; the stem) is sampled with the local areal density of the input
+Gaussians nearest to it, each sample taking the covariance and opacity of its nearest input
+Gaussian, turned so its shortest axis lies along the surface normal, and the colour of the
+texture side (x tint) or stem vertex colour the camera sees. Both images then have the same
+footprint and only the surfaces and their colours differ. What this allows is measured: the true
+leaf surface (the generator's leaf meshes) through the same sampling scores ``GT leaf`` against
+the input's leaf Gaussians (rubber_tree 0.95: the input's off-surface noise and fuzz, which a
+surface does not have), beside the asset's own leaves (``leaf IoU``). Its limit: a part of the
+asset far from every input Gaussian takes the density of the nearest ones (not zero), so a
+spurious part still shows.
 
 Writes ``benchmarks/results/render.json`` (or ``--out``) and, with ``--pictures DIR``, input |
-asset side-by-side PNGs. Without ``../shared/plants`` it runs on the sample plants only and
-prints why (the surface errors need ``eval_deform.py``; the render metrics do not).
+asset (rasterised) side-by-side PNGs. ``--compare BEFORE.json`` prints before | after per plant;
+``--from-json`` prints tables of earlier runs without rendering. Without ``../shared/plants`` it
+runs on the sample plants only and prints why (the surface errors need ``eval_deform.py``; the
+render metrics do not).
 
     .venv/bin/python benchmarks/render.py [--sets suite,paper8] [--plants a,b] [--size 384]
+        [--work DIR] [--reuse] [--pictures DIR] [--compare before.json]
 """
 from __future__ import annotations
 
@@ -490,6 +510,15 @@ def fmt_compare(before: list[dict], after: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def _save(args, rows: list[dict]) -> None:
+    from leaffit_usd.io_util import atomic_write_bytes
+
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(args.out, (json.dumps(dict(rows=rows, size=args.size, views=N_VIEWS,
+                                                  elevation=ELEVATION,
+                                                  load_average=os.getloadavg()[0]), indent=1) + "\n").encode())
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sets", default="suite,paper8", help="suite and/or paper8 (default: both)")
@@ -541,16 +570,12 @@ def main(argv=None) -> int:
               f"stem Corr {row.get('stem_corr', float('nan')):.4f} HD {row.get('stem_hd', float('nan')):.4f}, "
               f"leaf Corr {row.get('leaf_corr', float('nan')):.4f} OE {row.get('leaf_oe', float('nan')):.4f}",
               flush=True)
+        _save(args, rows)              # after every plant: a long run stopped early keeps its rows
     print(fmt(rows))
     if args.compare:
         before = [r for f in args.compare.split(",") for r in json.loads(Path(f).read_text())["rows"]]
         print(fmt_compare(before, rows))
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    from leaffit_usd.io_util import atomic_write_bytes
-
-    atomic_write_bytes(args.out, (json.dumps(dict(rows=rows, size=args.size, views=N_VIEWS,
-                                                  elevation=ELEVATION,
-                                                  load_average=os.getloadavg()[0]), indent=1) + "\n").encode())
+    _save(args, rows)
     return 0
 
 
