@@ -154,11 +154,11 @@ def planar_chart(xy: np.ndarray, size: int, margin: float, layout: str = "fit") 
 def envelope_chart(outline_xy: np.ndarray, size: int, margin: float, min_width: float = 0.3,
                    samples: int = 256) -> UVChart:
     """The envelope chart (:class:`UVChart`) of a leaf whose outer outline is ``outline_xy``
-    (k, 2), template frame: per column x, the outline's lowest and highest y; their midpoint,
-    smoothed, is the centre line c(x); the half-width about it, widened by a running maximum,
-    smoothed and floored at ``min_width`` x its largest value, is h(x). Falls back to the planar
-    fitted chart for a degenerate outline."""
-    from scipy.ndimage import gaussian_filter1d, maximum_filter1d
+    (k, 2), template frame: per column x, the outline's lowest and highest y, each widened by a
+    running extreme and smoothed into an envelope; their midpoint is the centre line c(x), their
+    half-distance, floored at ``min_width`` x its largest value, is h(x). Falls back to the
+    planar fitted chart for a degenerate outline."""
+    from scipy.ndimage import gaussian_filter1d, maximum_filter1d, minimum_filter1d
 
     p = np.asarray(outline_xy, np.float64)[:, :2]
     if len(p) < 3 or np.ptp(p[:, 0]) <= 0 or np.ptp(p[:, 1]) <= 0:
@@ -179,17 +179,19 @@ def envelope_chart(outline_xy: np.ndarray, size: int, margin: float, min_width: 
     yu = np.interp(xs, xs[ok], yu[ok])
     yl = np.interp(xs, xs[ok], yl[ok])
     sigma = samples / 48.0
-    # the centre line: midpoints smoothed over a wider window, weighted by the squared width (the
-    # narrow ends -- a lobe's tip, the apex -- do not swing it)
-    wgt = (yu - yl) ** 2 + 1e-12 * float(np.ptp(p[:, 1])) ** 2
-    c = gaussian_filter1d(wgt * 0.5 * (yu + yl), 4 * sigma, mode="nearest") / \
-        gaussian_filter1d(wgt, 4 * sigma, mode="nearest")
-    need = np.maximum(yu - c, c - yl)
-    floor = float(min_width) * float(need.max())
-    h_raw = np.maximum(need, floor)
-    h = gaussian_filter1d(maximum_filter1d(h_raw, size=int(4 * sigma) | 1, mode="nearest"), sigma,
-                          mode="nearest")
-    h = np.maximum(h, h_raw)
+    # upper and lower envelopes, each a running extreme over 2 sigma smoothed (and never inside
+    # the outline); c and h are their midpoint and half-distance: every column is filled from
+    # its own lower to its own upper edge. (A centre line smoothed on its own lagged behind a
+    # meandering strap leaf and widened h to its far side: lucky_bamboo's leaf filled 67 % of
+    # the chart, 79 % with the two envelopes.)
+    w = int(2 * sigma) | 1
+    u = np.maximum(gaussian_filter1d(maximum_filter1d(yu, size=w, mode="nearest"), sigma,
+                                     mode="nearest"), yu)
+    lo = np.minimum(gaussian_filter1d(minimum_filter1d(yl, size=w, mode="nearest"), sigma,
+                                      mode="nearest"), yl)
+    c = 0.5 * (u + lo)
+    h_raw = 0.5 * (u - lo)
+    h = np.maximum(h_raw, float(min_width) * float(h_raw.max()))
     h = np.maximum(h, 1e-12)
     chart = UVChart((0.0, 1.0, 0.0, 1.0), (xs, c, h))
     chart.bounds = chart_bounds(chart.polygon(p, size), margin, size)
