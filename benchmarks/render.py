@@ -38,7 +38,9 @@ spurious part still shows.
 
 Writes ``benchmarks/results/render.json`` (or ``--out``) and, with ``--pictures DIR``, input |
 asset (rasterised) side-by-side PNGs. ``--compare BEFORE.json`` prints before | after per plant;
-``--from-json`` prints tables of earlier runs without rendering. Without ``../shared/plants`` it
+``--from-json`` prints tables of earlier runs without rendering. The "before" stage of an issue:
+``git worktree add --detach /tmp/before COMMIT`` then ``--convert-with /tmp/before`` converts
+with that commit's code (a subprocess) and renders with this benchmark. Without ``../shared/plants`` it
 runs on the sample plants only and prints why (the surface errors need ``eval_deform.py``; the
 render metrics do not).
 
@@ -340,8 +342,29 @@ def asset_scene(stage_path: Path, asset) -> dict:
 
 
 # ---- one plant -----------------------------------------------------------------------------------
+CONVERT_ELSEWHERE = """
+import json, sys
+import numpy as np
+from leaffit_usd.pipeline import ConvertOptions, convert
+ply, out, gt, saved = sys.argv[1:5]
+with np.load(gt) as z:
+    up, root = np.asarray(z["up"], float), np.asarray(z["root"], float)
+rep = convert(ply, out, ConvertOptions(up=up, root=root, labels=gt))
+open(saved, "w").write(json.dumps(rep, default=str))
+"""
+
+
+def convert_with(code: Path, ply: Path, out: Path, gtp: Path, saved: Path) -> None:
+    """``convert`` as the code in ``code`` (a worktree of another commit, e.g. the one before an
+    issue's work) does it, in a subprocess with that tree first on the path; same options."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    env = {**os.environ, "PYTHONPATH": str(code)}
+    subprocess.run([sys.executable, "-c", CONVERT_ELSEWHERE, str(ply), str(out), str(gtp), str(saved)],
+                   check=True, cwd=str(code), env=env)
+
+
 def run_plant(d: Path, work: Path, size: int, pictures: Path | None, tag: str,
-              reuse: bool = False) -> dict:
+              reuse: bool = False, code: Path | None = None) -> dict:
     from leaffit_usd.pipeline import ConvertOptions, convert
     from leaffit_usd.splats import load_cloud
     from leaffit_usd.usd.reader import read_stage
@@ -354,6 +377,9 @@ def run_plant(d: Path, work: Path, size: int, pictures: Path | None, tag: str,
     saved = work / name / "convert_report.json"
     t0 = time.perf_counter()
     if reuse and out.is_file() and saved.is_file():   # --reuse: the stage of an earlier run
+        report = json.loads(saved.read_text())
+    elif code is not None:                            # --convert-with: another commit's code
+        convert_with(code, d / "point_cloud.ply", out, gtp, saved)
         report = json.loads(saved.read_text())
     else:
         report = convert(d / "point_cloud.ply", out,
@@ -529,6 +555,9 @@ def main(argv=None) -> int:
     ap.add_argument("--reuse", action="store_true",
                     help="render the stages an earlier run left in --work instead of converting again")
     ap.add_argument("--out", default=str(RESULTS / "render.json"))
+    ap.add_argument("--convert-with", default=None,
+                    help="convert with the code in this folder (a git worktree of another commit: "
+                         "the 'before' stage), render with this benchmark")
     ap.add_argument("--from-json", default=None,
                     help="comma-separated results JSONs of earlier runs: print their joined table "
                          "(and --compare) without rendering")
@@ -564,7 +593,8 @@ def main(argv=None) -> int:
     rows = []
     for tag, d in plants:
         row = run_plant(d, work / "out" / tag, args.size,
-                        Path(args.pictures) if args.pictures else None, tag, args.reuse)
+                        Path(args.pictures) if args.pictures else None, tag, args.reuse,
+                        Path(args.convert_with) if args.convert_with else None)
         rows.append(row)
         print(f"{tag} {d.name}: IoU min {row['iou_min']:.3f}, PSNR {row['psnr']:.2f}, SSIM {row['ssim']:.3f}, "
               f"stem Corr {row.get('stem_corr', float('nan')):.4f} HD {row.get('stem_hd', float('nan')):.4f}, "
