@@ -97,12 +97,10 @@ def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np
         Gaussians are carried into its coordinates and rendered over its bounds; the back texture
         is its mirror image (column c of the back = column W-1-c of the front)
     max_gaussians : at most this many Gaussians rendered, widened for the rest (:func:`bake_subset`)
-    rotation : (3, 3) template -> sheet-view frame (:mod:`leaffit_usd.mesh.view_frame`), in which
-        ``sheet_points``, ``outline_xy`` and the chart are given; None = the template frame
+    rotation : (3, 3) template -> sheet view (:mod:`.view_frame`), the frame of the sheet and chart
     Returns (front, back, info) with coverage figures and the fallback used, if any.
     """
     from leaffit_usd.splats.render import render_orthographic_np
-
     means, cov, _, opac = template_gaussians_local(cloud_working, fits, rotation)
     view_colors = template_view_colors(cloud_working, fits, rotation)  # view-dependent (SH) per side
     bounds = chart.bounds
