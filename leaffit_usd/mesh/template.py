@@ -7,9 +7,15 @@ Pipeline (template local frame: petiole base at the origin, +X base -> apex, +Z 
    no vertices, so the sheet has at most that many vertices (fewer when BPA leaves samples out).
    The budget counts the *sheet's* vertices (geometric positions); the two-sided mesh duplicates
    each per side, so ``TemplateMesh.points`` has twice as many rows.
+   **Sheet view**: the samples are turned so +Z is the leaf's mean normal when the fit's +Z is
+   more than 30 degrees from it (an arched strap leaf, edge-on in the fit's frame:
+   :mod:`leaffit_usd.mesh.view_frame`); steps 2-5 work in that view, the mesh is returned in
+   the template frame.
 2. **Surface** — ball pivoting + repair (the paper's), or the planar fallback, see
    :mod:`leaffit_usd.mesh.surface`. ``method="auto"`` runs BPA and falls back to planar when the
    repaired BPA sheet fails the disk/thin checks, with a warning.
+   The clean outline grows out to the template splats' silhouette (the centres stop short of
+   the leaf's edge: :mod:`leaffit_usd.mesh.outline_fit`).
 3. **UVs** — from the template frame's xy (the PCA-aligned view the fit uses), through a chart
    (:class:`leaffit_usd.mesh.uv_chart.UVChart`). Chosen over xatlas because the bake is an
    orthographic render along +-Z of that very frame (no seams, one island per side, front and
