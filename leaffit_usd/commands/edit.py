@@ -223,12 +223,7 @@ def run(args) -> int:
         session.saved_ops = list(session.segmenter.operations)
         log.info("edit: replayed %d operations from %s", len(edits.operations), args.edits)
     server = ViewerServer(session, port=args.port)
-    print(f"leaffit-usd edit: open {server.url}", flush=True)
-    print("  (local only; the token in the URL is required; Ctrl-C to stop)", flush=True)
-    for line in doubtful_lines(session):
-        print(line, flush=True)
-    if not args.no_browser:
-        _open_browser(server.url)
+    # the handlers go in before the URL is printed: whoever reads the URL may send Ctrl-C at once
     previous = {}
     if threading.current_thread() is threading.main_thread():
         previous[signal.SIGTERM] = signal.signal(signal.SIGTERM, _interrupt)  # stop as on Ctrl-C
@@ -237,6 +232,12 @@ def run(args) -> int:
         # installs no handler of its own and the server could only be killed
         previous[signal.SIGINT] = signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
+        print(f"leaffit-usd edit: open {server.url}", flush=True)
+        print("  (local only; the token in the URL is required; Ctrl-C to stop)", flush=True)
+        for line in doubtful_lines(session):
+            print(line, flush=True)
+        if not args.no_browser:
+            _open_browser(server.url)
         server.serve_forever()
     except KeyboardInterrupt:
         pass
