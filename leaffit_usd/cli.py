@@ -86,10 +86,9 @@ def _commands(only: str | None = None):
     return sorted(mods, key=lambda m: getattr(m, "ORDER", 50))
 
 
-def _command_word(argv) -> str | None:
+def _command_word(argv: list) -> str | None:
     """The command named in ``argv`` (its first word when that is not an option), else None."""
-    args = sys.argv[1:] if argv is None else list(argv)
-    return args[0] if args and not args[0].startswith("-") else None
+    return argv[0] if argv and not argv[0].startswith("-") else None
 
 
 def build_parser(argv=None) -> argparse.ArgumentParser:
@@ -105,7 +104,7 @@ def build_parser(argv=None) -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"leaffit-usd {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for mod in _commands(_command_word(argv) if argv is not None else None):
+    for mod in _commands(None if argv is None else _command_word(list(argv))):
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         p.add_argument("-q", "--quiet", action="store_true", help="print only warnings and errors")

@@ -1,4 +1,5 @@
-"""Farthest point sampling (FPS), returning indices into the input.
+"""Farthest point sampling (FPS), returning indices into the input; and a seeded random sample
+that ignores the order of the points (:func:`position_order_sample`).
 
 open3d's C++ FPS does the work (about 0.6 s for 8,192 of 100k points on 2 cores, ~10x a numpy
 loop); it returns points rather than indices, so they are mapped back with an exact kd-tree
@@ -52,3 +53,14 @@ def _fps_numpy(points: np.ndarray, k: int, start: int) -> np.ndarray:
             return idx[:i]
         d = np.minimum(d, ((points - points[idx[i]]) ** 2).sum(1))
     return idx
+
+
+def position_order_sample(points: np.ndarray, k: int, seed: int) -> np.ndarray:
+    """(min(N, k),) int64 sorted indices into ``points`` (N, 3): a seeded random sample of k
+    points drawn from the points in position order (x, then y, then z), not in their given
+    order, so the same points in another file order give the same sample. All when N <= k."""
+    n = len(points)
+    if n <= k:
+        return np.arange(n, dtype=np.int64)
+    by_position = np.lexsort(np.asarray(points).T[::-1])
+    return np.sort(by_position[np.random.default_rng(seed).choice(n, k, replace=False)]).astype(np.int64)

@@ -54,6 +54,7 @@ import numpy as np
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.geometry import knn as _knn
 from leaffit_usd.geometry.plane import plane_basis
+from leaffit_usd.geometry.sampling import position_order_sample
 from leaffit_usd.isolate.result import (BACKGROUND, FLOATER, GROUND, PLANT, POT, SOIL,
                                         Isolation)
 
@@ -364,10 +365,8 @@ def isolate_plant(cloud, params: IsolateParams | None = None, up: np.ndarray | N
         return Isolation(classes, params=p_.to_dict(), timings={"total": time.perf_counter() - t_all})
 
     # 1-4 on the samples -----------------------------------------------------------------------
-    # a seeded sample of the candidates in position order (not file order): the same Gaussians
-    # in another order give the same samples, hence the same classes
-    by_position = cand_idx[np.lexsort(pts[cand_idx].T[::-1])]
-    sidx = np.sort(by_position[_sample_index(len(cand_idx), p_.sample, p_.seed)])
+    # the same Gaussians in another file order give the same samples, hence the same classes
+    sidx = cand_idx[position_order_sample(pts[cand_idx], p_.sample, p_.seed)]
     scls, ground, thr, radius = _analyse_samples(pts[sidx], p_, up, timings)
 
     # every Gaussian: its sample's class, the ground plane's exact rule --------------------------

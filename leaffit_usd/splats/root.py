@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from leaffit_usd.errors import ParameterError
+from leaffit_usd.geometry.sampling import position_order_sample
 from leaffit_usd.splats.cloud import GaussianCloud
 from leaffit_usd.splats.up_axis import estimate_up
 
@@ -42,14 +43,7 @@ class MainBlob:
         self.trivial = n < 20
         if self.trivial:
             return
-        if n > _ROOT_SAMPLE:
-            # a seeded random sample of the points in position order, not file order: the same
-            # Gaussians in another order give the same blob
-            by_position = np.lexsort(p.T[::-1])
-            sidx = np.sort(by_position[np.random.default_rng(0).choice(n, _ROOT_SAMPLE, replace=False)])
-        else:
-            sidx = np.arange(n)
-        s = p[sidx]
+        s = p[position_order_sample(p, _ROOT_SAMPLE, seed=0)]  # the same blob in any file order
         self.tree = cKDTree(s)
         d, nb = self.tree.query(s, k=min(_ROOT_GRAPH_K + 1, len(s)), workers=-1)
         self.radius = 4.0 * float(np.median(d[:, min(4, d.shape[1] - 1)]))

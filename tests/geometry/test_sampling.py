@@ -28,3 +28,18 @@ def test_fps_bad_k_and_duplicates():
         farthest_point_sampling(np.zeros((5, 3)), 0)
     dup = np.zeros((10, 3))
     assert len(farthest_point_sampling(dup, 20)) == 1
+
+
+def test_position_order_sample_ignores_the_order():
+    """The same points shuffled give the same sample (a seeded choice by file index would not);
+    fewer points than asked for: all of them."""
+    from leaffit_usd.geometry.sampling import position_order_sample
+
+    rng = np.random.default_rng(2)
+    p = rng.normal(size=(5000, 3))
+    perm = rng.permutation(len(p))
+    a = position_order_sample(p, 700, seed=4)
+    b = position_order_sample(p[perm], 700, seed=4)
+    assert len(a) == 700 and np.all(np.diff(a) > 0)
+    assert set(a.tolist()) == set(perm[b].tolist())
+    assert np.array_equal(position_order_sample(p[:300], 700, seed=4), np.arange(300))
