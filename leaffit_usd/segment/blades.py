@@ -70,6 +70,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from leaffit_usd.geometry.heat import GeodesicSolver, voxel_subsample
+from leaffit_usd.geometry.sampling import position_order
 
 log = logging.getLogger("leaffit_usd")
 
@@ -138,7 +139,7 @@ def build_surface_graph(points: np.ndarray, normals: np.ndarray | None, include:
     dom = pool[voxel_subsample(points[pool], params.domain_points)]
     # in position order, not file order: graph ties (equal distances, merge order) then fall the
     # same way whatever the order of the Gaussians in the file
-    dom = dom[np.lexsort(points[dom].T[::-1])]
+    dom = dom[position_order(points[dom])]
     x = points[dom].astype(np.float64)
     m = len(x)
     kq = int(min(max(12, params.graph_k + 1), m))  # the graph's edges, spacing, PCA normals

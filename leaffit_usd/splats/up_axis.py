@@ -11,8 +11,10 @@ from typing import NamedTuple
 import numpy as np
 
 from leaffit_usd.errors import ParameterError
+from leaffit_usd.geometry.heat import voxel_subsample
 from leaffit_usd.geometry.outliers import inlier_mask
 from leaffit_usd.geometry.plane import plane_basis
+from leaffit_usd.geometry.sampling import position_order
 
 _UP_SAMPLE = 20_000       # points used by the up estimator (deterministic subsample)
 LOW_UP_CONFIDENCE = 0.35  # below this, estimate_up was wrong in some benchmark runs (benchmarks/up_axis.py)
@@ -32,36 +34,12 @@ class UpEstimate(NamedTuple):
     root: np.ndarray
 
 
-def _subsample(points: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
-    points = np.asarray(points)
-    if len(points) <= k:
-        return np.asarray(points, np.float64)
-    idx = np.sort(np.random.default_rng(seed).choice(len(points), k, replace=False))
-    return np.asarray(points[idx], np.float64)
-
-
-def _voxel_subsample(p: np.ndarray, target: int) -> np.ndarray:
-    """About ``target`` rows of ``p`` (M, 3 + C), one per occupied voxel (positions = first 3 columns).
-
-    Spatially even, unlike a random subsample: a thin stem keeps about as many points as a
-    leaf of the same area would, so the stem cue survives subsampling. Deterministic.
-    """
-    if len(p) <= target:
-        return p
-    xyz = p[:, :3]
-    lo = xyz.min(0)
-    ext = float(np.max(xyz.max(0) - lo)) or 1.0
-    size = ext / 64.0
-    keep = None
-    for _ in range(8):  # surfaces: occupied voxels ~ 1 / size**2
-        keys = np.floor((xyz - lo) / size).astype(np.int64)
-        _, first = np.unique(keys, axis=0, return_index=True)
-        keep = first
-        ratio = len(first) / target
-        if 0.8 <= ratio <= 1.25:
-            break
-        size *= np.sqrt(ratio)
-    return p[np.sort(keep)]
+def _subsample(p: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
+    """``k`` rows of ``p`` (M, 3 + C) drawn at random (seeded), kept in their order."""
+    if len(p) <= k:
+        return np.asarray(p, np.float64)
+    idx = np.sort(np.random.default_rng(seed).choice(len(p), k, replace=False))
+    return np.asarray(p[idx], np.float64)
 
 
 def _remove_isolated(p: np.ndarray, k: int = 8, factor: float = 4.0) -> np.ndarray:
@@ -80,19 +58,29 @@ _COARSE_DIRS = 300      # directions of the coarse search over the sphere
 _COARSE_POINTS = 2000   # points of the coarse search
 _STARTS = 5             # distinct coarse minima refined (random coarse sample)
 _VOXEL_STARTS = 3       # distinct coarse minima refined (spatially even coarse sample)
+_CHUNK = 1_000_000       # directions x points scored at once (memory: ~50 bytes each)
+_GROUP = 32              # directions scored together (similar counts in their lowest 25 %)
 
 
-def _root_score(p: np.ndarray, u: np.ndarray) -> tuple[float, np.ndarray]:  # noqa: C901
-    """How well ``u`` explains 'narrow stem at the bottom, under a wide canopy'. Lower is better.
+def _root_score(p: np.ndarray, u: np.ndarray) -> tuple[float, np.ndarray]:
+    """(score, root (3,)) of one direction ``u`` (3,): see :func:`_root_scores`."""
+    scores, roots = _root_scores(p, np.asarray(u, np.float64)[None])
+    return float(scores[0]), roots[0]
+
+
+def _root_scores(p: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How well each direction explains 'narrow stem at the bottom, under a wide canopy'.
 
     p : (M, 3) or (M, 6) float64 (floaters removed; columns 3-5, when present, are the Gaussians'
-    unit normals); u : (3,) unit. Returns (score, root estimate (3,)).
-    With heights ``h = p @ u`` (robust extent ``ext`` from the 0.1/99.9 percentiles) and
-    horizontal distances measured in the plane perpendicular to ``u``:
+    unit normals); dirs : (D, 3) unit vectors. Returns (scores (D,), lower is better; roots
+    (D, 3), same frame as p). For a direction ``u``, with heights ``h = p @ u`` (robust extent
+    ``ext`` from the 0.1/99.9 percentiles) and horizontal distances measured in the plane
+    perpendicular to ``u``:
 
     * width term: for bottom bands of 5, 10, 15, 20 and 25 % of the extent, the 90th-percentile
-      horizontal distance of the band's points from the band's own centre -- a stem is narrow
-      in every horizontal direction, a leaf tip seen "from below" is a widening sheet;
+      horizontal distance of the band's points from the band's own centre (per-axis median) --
+      a stem is narrow in every horizontal direction, a leaf tip seen "from below" is a
+      widening sheet;
     * offset term (weight 0.1): horizontal distance of the lowest band's centre from the
       canopy's centre (median of the points above 30 % of the extent);
 
@@ -105,92 +93,123 @@ def _root_score(p: np.ndarray, u: np.ndarray) -> tuple[float, np.ndarray]:  # no
       same measure of the band's normals projected on the horizontal plane is added (a stem's
       surface normals point all round).
 
-    The root estimate is the lowest band's centre at the bottom of the extent.
+    The root estimate is the lowest band's centre at the bottom of the extent. A band with
+    fewer than 3 points is replaced by the lowest four points (and their ties).
+
+    All directions at once (arrays (D, ..., M), medians and quantiles by one sort or partition
+    per statistic): the up search scores ~10^3 directions, and one direction at a time spent
+    most of its time in numpy's per-call overhead.
     """
-    normals = p[:, 3:6] if p.shape[1] == 6 else None
-    xyz = p[:, :3]
-    h = xyz @ u
+    dirs = np.asarray(dirs, np.float64).reshape(-1, 3)
+    pt = np.ascontiguousarray(p.T)  # (3 or 6, M): rows for the matrix products
+    h = dirs.astype(p.dtype) @ pt[:3]  # (D, M) heights
     lo, hi = _quantiles(h, (0.001, 0.999))
     ext = hi - lo
-    if ext <= 0:
-        return np.inf, xyz.mean(0)
-    basis = plane_basis(u)
-    x = xyz @ basis  # (M, 2) horizontal coordinates
-    canopy = h > lo + 0.3 * ext
-    xc = x[canopy] if canopy.sum() >= 10 else x
-    c = _median2(xc)
-    radius = _quantile(np.hypot(x[:, 0] - c[0], x[:, 1] - c[1]), 0.9)
-    if radius <= 0:
-        return np.inf, xyz.mean(0)
-    # the bands are nested: select the widest once, then each band within it
-    wide = h <= lo + _BANDS[-1] * ext
-    order = np.argsort(h[wide], kind="stable")  # each band is a range of this order
-    h_w, x_w = h[wide][order], x[wide][order]
-    n_w = normals[wide][order] if normals is not None else None
-    start = int(np.searchsorted(h_w, lo, "left"))
-    widths, centre0, flat = [], None, 0.0
+    # the bands' statistics need, per direction, only its points in the lowest 25 % (a few
+    # hundred of 2k to 20k): directions with similar counts are scored together
+    n_wide = (h <= (lo + _BANDS[-1] * ext)[:, None]).sum(1)
+    order = np.argsort(n_wide, kind="stable")
+    step = max(1, min(_GROUP, _CHUNK // len(p)))
+    scores, roots = np.empty(len(dirs)), np.empty((len(dirs), 3))
+    for i in range(0, len(dirs), step):
+        g = order[i:i + step]
+        scores[g], roots[g] = _root_scores_group(pt, dirs[g], h[g], lo[g], ext[g], int(n_wide[g].max()))
+    return scores, roots
+
+
+def _root_scores_group(pt, dirs, h, lo, ext, n_wide):
+    """:func:`_root_scores` of directions ``dirs`` (D, 3) for the points ``pt`` (3 or 6, M; the
+    transpose of ``p``) with heights ``h`` (D, M), their robust bottoms ``lo`` and extents
+    ``ext`` (D,), and at most ``n_wide`` points in the lowest 25 %."""
+    n_d, m = h.shape
+    basis = np.stack([plane_basis(u) for u in dirs])  # (D, 3, 2)
+    basis_t = basis.transpose(0, 2, 1).astype(pt.dtype)  # (D, 2, 3)
+    x = basis_t @ pt[:3]  # (D, 2, M) horizontal coordinates
+    canopy = h > (lo + 0.3 * ext)[:, None]
+    canopy[canopy.sum(1) < 10] = True
+    c = _masked_quantiles(x, canopy[:, None], (0.5,))[0]  # (D, 2) canopy centre
+    radius = _quantiles(_norm2(x - c[:, :, None]), (0.9,))[0]
+    # gather, per direction, its L lowest points (L >= every band's count)
+    n_wide = min(m, max(4, n_wide))
+    idx = np.argpartition(h, n_wide - 1, axis=1)[:, :n_wide] if n_wide < m else np.broadcast_to(np.arange(m), (n_d, m))
+    hw = np.take_along_axis(h, idx, 1)  # (D, L)
+    xw = np.take_along_axis(x, idx[:, None], 2)  # (D, 2, L)
+    fourth = np.partition(hw, 3, axis=1)[:, 3]  # the lowest four points' top
+    widths, centre0, flat = [], None, np.zeros(n_d)
     for f in _BANDS:
-        i0, i1 = start, int(np.searchsorted(h_w, lo + f * ext, "right"))
-        if i1 - i0 < 3:  # too few: the lowest four points (and their ties)
-            i0, i1 = 0, int(np.searchsorted(h_w, h_w[min(3, len(h_w) - 1)], "right"))
-        xb = x_w[i0:i1]
-        cb = _median2(xb)
+        band = (hw >= lo[:, None]) & (hw <= (lo + f * ext)[:, None])
+        few = band.sum(1) < 3
+        band[few] = hw[few] <= fourth[few, None]
+        cb = _masked_quantiles(xw, band[:, None], (0.5,))[0]  # (D, 2)
+        widths.append(_masked_quantiles(_norm2(xw - cb[:, :, None]), band, (0.9,))[0])
         if centre0 is None:
             centre0 = cb
-        widths.append(_quantile(np.hypot(xb[:, 0] - cb[0], xb[:, 1] - cb[1]), 0.9))
-        if f == _BANDS[1] and len(xb) >= 5:
-            flat = _roundness_defect(_cov2(xb))
-            if n_w is not None:
-                nh = n_w[i0:i1] @ basis  # (k, 2): a stem's surface normals go all round
-                flat += _roundness_defect(nh.T @ nh / len(nh))
-    offset = float(np.hypot(*(centre0 - c)))
-    score = (np.mean(widths) + _OFFSET_WEIGHT * offset) / radius + _FLAT_WEIGHT * flat
-    root = basis @ centre0 + u * lo
-    return float(score), root
+        if f == _BANDS[1]:
+            k = band.sum(1)
+            ok = k >= 5
+            xb = np.where(band[:, None], xw - (xw * band[:, None]).sum(2, keepdims=True) / k[:, None, None], 0.0)
+            flat = np.where(ok, _roundness_defect(xb @ xb.transpose(0, 2, 1) / np.maximum(k - 1, 1)[:, None, None]), 0.0)
+            if len(pt) == 6:  # a stem's surface normals go all round
+                nw = basis_t @ np.take_along_axis(pt[None, 3:6], idx[:, None], 2)  # (D, 2, L)
+                nw = nw * band[:, None]
+                flat = flat + np.where(ok, _roundness_defect(nw @ nw.transpose(0, 2, 1) / np.maximum(k, 1)[:, None, None]), 0.0)
+    offset = _norm2(centre0 - c)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        score = (np.mean(widths, axis=0) + _OFFSET_WEIGHT * offset) / radius + _FLAT_WEIGHT * flat
+    root = (basis @ centre0[:, :, None])[:, :, 0] + dirs * lo[:, None]
+    bad = (ext <= 0) | (radius <= 0)
+    score[bad] = np.inf
+    root[bad] = pt[:3].mean(1)
+    return score, root
 
 
-def _quantile(a: np.ndarray, q: float) -> float:
-    """``np.quantile(a, q)`` (linear interpolation) of a 1-D array, with one partition call.
-
-    The up search calls this ~10^4 times on small arrays, where np.quantile's overhead was
-    most of the time.
-    """
-    return float(_quantiles(a, (q,))[0])
+def _norm2(v: np.ndarray) -> np.ndarray:
+    """Lengths of 2-vectors stored along axis 1: (D, 2, ...) -> (D, ...)."""
+    return np.sqrt(v[:, 0] ** 2 + v[:, 1] ** 2)
 
 
 def _quantiles(a: np.ndarray, qs: tuple[float, ...]) -> np.ndarray:
-    """``np.quantile(a, qs, axis=0)`` (linear interpolation) with one partition call.
+    """``np.quantile(a, qs, axis=-1)`` (linear interpolation) with one partition (or sort) call.
 
-    a : (M,) or (M, C); returns (len(qs),) or (len(qs), C).
+    a : (..., M); returns (len(qs), ...).
     """
-    n = len(a)
+    n = a.shape[-1]
     pos = [q * (n - 1) for q in qs]
     ks = [int(p_) for p_ in pos]
     k1s = [min(k + 1, n - 1) for k in ks]
-    part = np.partition(a, sorted(set(ks + k1s)), axis=0)
-    t = np.array([p_ - k for p_, k in zip(pos, ks)])
-    if a.ndim == 2:
-        t = t[:, None]
-    return part[ks] + (part[k1s] - part[ks]) * t
+    kth = sorted(set(ks + k1s))
+    # numpy's partition at several kth is slower than a sort (introselect per kth)
+    part = np.partition(a, kth, axis=-1) if len(kth) <= 2 else np.sort(a, axis=-1)
+    return np.stack([part[..., k] + (part[..., k1] - part[..., k]) * (p_ - k)
+                     for p_, k, k1 in zip(pos, ks, k1s)])
 
 
-def _median2(x: np.ndarray) -> np.ndarray:
-    """(2,) per-column medians of an (M, 2) array."""
-    return _quantiles(x, (0.5,))[0]
+def _masked_quantiles(a: np.ndarray, mask: np.ndarray, qs: tuple[float, ...]) -> np.ndarray:
+    """Per row, ``np.quantile`` (linear interpolation) of the entries of ``a`` where ``mask``.
+
+    a : (..., M) finite; mask : bool, broadcastable to ``a``, at least one True per row.
+    Returns (len(qs), ...). One sort (masked entries as +inf, which sort last).
+    """
+    mask = np.broadcast_to(mask, a.shape)
+    k = mask.sum(-1)
+    srt = np.sort(np.where(mask, a, np.inf), axis=-1)
+    out = []
+    for q in qs:
+        pos = q * (k - 1)
+        k0 = pos.astype(np.int64)
+        k1 = np.minimum(k0 + 1, k - 1)
+        v0 = np.take_along_axis(srt, k0[..., None], -1)[..., 0]
+        v1 = np.take_along_axis(srt, k1[..., None], -1)[..., 0]
+        out.append(v0 + (v1 - v0) * (pos - k0))
+    return np.stack(out)
 
 
-def _cov2(x: np.ndarray) -> np.ndarray:
-    """(2, 2) sample covariance of an (M, 2) array (``np.cov(x.T)`` without its overhead)."""
-    d = x - x.mean(0)
-    return d.T @ d / max(len(x) - 1, 1)
-
-
-def _roundness_defect(cov: np.ndarray) -> float:
-    """``1 - sqrt(l_min / l_max)`` of a symmetric 2x2 matrix (0 = round, 1 = a line)."""
-    a, b, d = float(cov[0, 0]), float(cov[0, 1]), float(cov[1, 1])
+def _roundness_defect(cov: np.ndarray) -> np.ndarray:
+    """``1 - sqrt(l_min / l_max)`` of symmetric 2x2 matrices (..., 2, 2) (0 = round, 1 = a line)."""
+    a, b, d = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
     mid, rad = 0.5 * (a + d), np.hypot(0.5 * (a - d), b)
-    l_min, l_max = max(mid - rad, 0.0), mid + rad
-    return 1.0 - np.sqrt(l_min / max(l_max, 1e-300))
+    l_min, l_max = np.maximum(mid - rad, 0.0), mid + rad
+    return 1.0 - np.sqrt(l_min / np.maximum(l_max, 1e-300))
 
 
 def fibonacci_sphere(n: int) -> np.ndarray:
@@ -202,19 +221,30 @@ def fibonacci_sphere(n: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
-def _refine(p: np.ndarray, u: np.ndarray, score: float, cones=(12.0, 6.0, 3.0, 1.5)):
+def _refine(p: np.ndarray, us: np.ndarray, scores: np.ndarray, cones: tuple[float, ...]):
+    """Pattern search on the sphere from each start: ``(us (S, 3), scores (S,))`` improved.
+
+    p : the points :func:`_root_scores` takes; us : (S, 3) unit start directions with their
+    scores (S,). For each cone (degrees), every start moves to the best of 8 directions at that
+    angle around it while one improves its score; all starts' rings are scored in one call.
+    """
+    us, scores = np.array(us, np.float64).reshape(-1, 3), np.array(scores, np.float64).reshape(-1)
+    ring = np.linspace(0, 2 * np.pi, 8, endpoint=False)
+    ring = np.stack([np.cos(ring), np.sin(ring)])  # (2, 8)
     for cone in np.radians(cones):
-        improved = True
-        while improved:
-            improved = False
-            basis = plane_basis(u)
-            for ang in np.linspace(0, 2 * np.pi, 8, endpoint=False):
-                d = np.cos(cone) * u + np.sin(cone) * (basis @ [np.cos(ang), np.sin(ang)])
-                d /= np.linalg.norm(d)
-                sc = _root_score(p, d)[0]
-                if sc < score - 1e-9:
-                    score, u, improved = sc, d, True
-    return u, score
+        active = np.arange(len(us))
+        while len(active):
+            cand = np.concatenate([np.cos(cone) * us[i] + np.sin(cone) * (plane_basis(us[i]) @ ring).T
+                                   for i in active])  # (8 A, 3)
+            cand /= np.linalg.norm(cand, axis=1, keepdims=True)
+            sc = _root_scores(p, cand)[0].reshape(len(active), 8)
+            best = sc.argmin(1)
+            better = sc[np.arange(len(active)), best] < scores[active] - 1e-9
+            moved = active[better]
+            us[moved] = cand.reshape(len(active), 8, 3)[better, best[better]]
+            scores[moved] = sc[better, best[better]]
+            active = moved
+    return us, scores
 
 
 def estimate_up_with_confidence(points: np.ndarray, normals: np.ndarray | None = None) -> UpEstimate:
@@ -250,7 +280,7 @@ def estimate_up_with_confidence(points: np.ndarray, normals: np.ndarray | None =
             raise ParameterError("normals", f"shape {p.shape} like points", normals.shape)
         p = np.concatenate([p, normals], axis=1)
     p = p[np.isfinite(p).all(1)]
-    p = p[np.lexsort(p[:, :3].T[::-1])]  # position order: the subsamples ignore the file order
+    p = p[position_order(p[:, :3])]  # position order: the subsamples ignore the file order
     p = _remove_isolated(_subsample(p, _UP_SAMPLE))
     center = np.zeros(p.shape[1])
     center[:3] = p[:, :3].mean(0)
@@ -261,8 +291,8 @@ def estimate_up_with_confidence(points: np.ndarray, normals: np.ndarray | None =
     # two coarse samples: a random one (density-weighted, like the fine sample) and a spatially
     # even one (keeps a thin stem's points); the best distinct minima of each are refined
     for coarse, n_starts in ((_subsample(p, _COARSE_POINTS, seed=1), _STARTS),
-                             (_voxel_subsample(p, _COARSE_POINTS), _VOXEL_STARTS)):
-        sc = np.array([_root_score(coarse, d)[0] for d in dirs])
+                             (p[voxel_subsample(p[:, :3], _COARSE_POINTS)], _VOXEL_STARTS)):
+        sc = _root_scores(coarse, dirs)[0]
         scores = sc if scores is None else scores
         starts = []
         for i in np.argsort(sc):  # the best few distinct (> 30 degrees apart) minima
@@ -270,12 +300,12 @@ def estimate_up_with_confidence(points: np.ndarray, normals: np.ndarray | None =
                 starts.append(i)
             if len(starts) == n_starts:
                 break
-        refined += [_refine(coarse, dirs[i], sc[i], cones=(12.0, 6.0))[0] for i in starts]
+        refined += list(_refine(coarse, dirs[starts], sc[starts], cones=(12.0, 6.0))[0])
     # choose among the refined minima on the full sample: a thin stem holds few points of the
     # coarse one, so its sharp minimum can look worse there than a leaf tip's
-    fine = [(_root_score(p, d)[0], k) for k, d in enumerate(refined)]
+    fine = [(sc, k) for k, sc in enumerate(_root_scores(p, np.array(refined))[0])]
     _, k_best = min(fine)
-    u, best = _refine(p, refined[k_best], fine[k_best][0], cones=(3.0, 1.5))
+    u, best = (a[0] for a in _refine(p, refined[k_best], fine[k_best][0], cones=(3.0, 1.5)))
     cos45 = np.cos(np.radians(45))
     far = [sc for sc, k in fine if refined[k] @ u < cos45]
     if not far:

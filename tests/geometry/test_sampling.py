@@ -43,3 +43,17 @@ def test_position_order_sample_ignores_the_order():
     assert len(a) == 700 and np.all(np.diff(a) > 0)
     assert set(a.tolist()) == set(perm[b].tolist())
     assert np.array_equal(position_order_sample(p[:300], 700, seed=4), np.arange(300))
+
+
+def test_position_order_is_lexsorts_order_with_ties():
+    """x first, then y, then z, then the index -- also inside runs of equal x (float32 captures
+    have them) and for exact duplicates; a sort by x alone fails this."""
+    from leaffit_usd.geometry.sampling import position_order
+
+    rng = np.random.default_rng(3)
+    for n, step in ((1, None), (50, None), (5000, None), (5000, 0.05), (5000, 2.0)):
+        p = rng.normal(size=(n, 3)).astype(np.float32).astype(np.float64)
+        if step is not None:  # coarse grids: many equal x, and equal (x, y)
+            p = np.round(p / step) * step
+        p[rng.integers(0, n, n // 5)] = p[rng.integers(0, n, n // 5)]  # exact duplicates
+        assert np.array_equal(position_order(p), np.lexsort(p.T[::-1])), (n, step)
