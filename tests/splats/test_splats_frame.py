@@ -95,6 +95,62 @@ def test_estimate_up_is_rotation_equivariant_and_deterministic():
     assert _angle(u1, r @ u0) < 5.0
 
 
+def _reference_root_score(p, u):
+    """The up score of one direction written out with np.quantile / np.median, as the docstring
+    of ``_root_scores`` states it (the oracle for the batched implementation)."""
+    from leaffit_usd.geometry.plane import plane_basis
+
+    xyz, nrm = p[:, :3], (p[:, 3:6] if p.shape[1] == 6 else None)
+    h = xyz @ u
+    lo, hi = np.quantile(h, [0.001, 0.999])
+    ext = hi - lo
+    b = plane_basis(u)
+    x = xyz @ b
+    canopy = h > lo + 0.3 * ext
+    c = np.median(x[canopy] if canopy.sum() >= 10 else x, axis=0)
+    radius = np.quantile(np.linalg.norm(x - c, axis=1), 0.9)
+    widths, centre0, flat = [], None, 0.0
+    fourth = np.sort(h[h <= lo + 0.25 * ext])[3]
+    for f in (0.05, 0.10, 0.15, 0.20, 0.25):
+        band = (h >= lo) & (h <= lo + f * ext)
+        if band.sum() < 3:
+            band = h <= fourth
+        cb = np.median(x[band], axis=0)
+        centre0 = cb if centre0 is None else centre0
+        widths.append(np.quantile(np.linalg.norm(x[band] - cb, axis=1), 0.9))
+        if f == 0.10 and band.sum() >= 5:
+            for m in (np.cov(x[band].T), None if nrm is None else (nrm[band] @ b).T @ (nrm[band] @ b) / band.sum()):
+                if m is not None:
+                    ev = np.linalg.eigvalsh(m)
+                    flat += 1 - np.sqrt(max(ev[0], 0) / ev[1])
+    score = (np.mean(widths) + 0.1 * np.linalg.norm(centre0 - c)) / radius + 0.05 * flat
+    return score, b @ centre0 + u * lo
+
+
+def test_up_scores_of_many_directions_match_one_at_a_time():
+    """The batched score (directions grouped by their bottom counts, scattered back) equals the
+    written-out single-direction score for every direction, with and without normals, also for
+    directions whose bottom bands hold fewer than 3 points (the lowest-four fallback)."""
+    from leaffit_usd.splats.up_axis import _root_scores, fibonacci_sphere
+
+    sp = make_plant(5, n_leaves=6)
+    rng = np.random.default_rng(0)
+    pts = sp.cloud.means[rng.choice(len(sp.cloud), 1500, replace=False)].astype(np.float64)
+    pts -= pts.mean(0)
+    nrm = sp.cloud.shortest_axes()[:1500]
+    dirs = np.r_[fibonacci_sphere(70), -sp.up[None] / np.linalg.norm(sp.up)]
+    for p in (pts, np.c_[pts, nrm]):
+        sc, roots = _root_scores(p, dirs)
+        for d, s_, r in zip(dirs, sc, roots):
+            ref_s, ref_r = _reference_root_score(p, d)
+            assert abs(s_ - ref_s) <= 1e-9 * max(1.0, abs(ref_s)), (d, s_, ref_s)
+            np.testing.assert_allclose(r, ref_r, atol=1e-9)
+    # the fallback was exercised: some directions have < 3 points in their 5 % band
+    h = dirs @ pts.T
+    lo, hi = np.quantile(h, [0.001, 0.999], axis=1)
+    assert (((h >= lo[:, None]) & (h <= (lo + 0.05 * (hi - lo))[:, None])).sum(1) < 3).any()
+
+
 def test_estimate_up_bad_input():
     with pytest.raises(ParameterError):
         estimate_up(np.zeros((5, 3)))
