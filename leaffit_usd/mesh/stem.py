@@ -9,7 +9,9 @@ Generation", extended).
    the axis), linked to the piece of the previous level it touches. Short terminal spurs are
    pruned. Stem Gaussians off every tube of that skeleton (a thin petiole or a branch base
    that the wide level sets of a thick stem swallowed) become extra chains
-   (:func:`_missed_tubes`). When the capture has too few stem Gaussians the segmentation's
+   (:func:`_missed_tubes`); once the tubes are swept, the Gaussians still far outside all of
+   them go through the same chain building once more, and the tubes are swept again
+   (:func:`_cover_missed`). When the capture has too few stem Gaussians the segmentation's
    rootward tree is the skeleton instead (``skeleton="tree"``, the paper's).
 2. **Streams.** At every junction the child with the longest subtree continues its parent, so
    the main stem is one tube from the root to its top and every branch / petiole one tube
@@ -307,6 +309,7 @@ class Skeleton:
     members: np.ndarray
     member_node: np.ndarray
     spread: np.ndarray | None = None
+    graph: "_GraphContext | None" = None
 
     def __post_init__(self):
         if self.spread is None:
@@ -318,6 +321,18 @@ class Skeleton:
             if p >= 0:
                 kids[p].append(c)
         return kids
+
+
+@dataclass
+class _GraphContext:
+    """What the Gaussian skeleton was cut from, kept for the coverage pass: idx (M,) the stem
+    Gaussians' indices (sorted), G (M, M) their bridged neighbour graph, g (M,) geodesic distance
+    from the base (inf: unreached), w_thin the level width of the thin tubes."""
+
+    idx: np.ndarray
+    G: object
+    g: np.ndarray
+    w_thin: float
 
 
 def _neighbour_graph(P: np.ndarray, k: int):
@@ -486,7 +501,9 @@ def gaussian_skeleton(points: np.ndarray, labels: np.ndarray, root_index: int,
     # the missed tubes are thin: their level sets need not be as wide as the base, only as the
     # graph's reach
     w_thin = max(float(params.level_width), float(params.reach_level_ratio) * reach)
-    return _missed_tubes(sk, points, idx, G, g, params, w_thin)
+    sk = _missed_tubes(sk, points, idx, G, g, params, w_thin)
+    sk.graph = _GraphContext(idx=idx, G=G, g=g, w_thin=w_thin)
+    return sk
 
 
 def _skeleton_residual(sk: Skeleton, q: np.ndarray) -> np.ndarray:
@@ -510,7 +527,8 @@ def _skeleton_residual(sk: Skeleton, q: np.ndarray) -> np.ndarray:
 
 
 def _missed_tubes(sk: Skeleton, points: np.ndarray, idx: np.ndarray, G, g: np.ndarray,
-                  params: StemParams, w0: float | None = None) -> Skeleton:
+                  params: StemParams, w0: float | None = None, off: np.ndarray | None = None,
+                  add_only: bool = False) -> Skeleton:
     """Thin tubes the level sets swallowed, added as branches.
 
     Level sets as wide as a thick stem (``base_level_ratio``) do not separate a thin petiole that
@@ -529,6 +547,11 @@ def _missed_tubes(sk: Skeleton, points: np.ndarray, idx: np.ndarray, G, g: np.nd
     points : (N, 3) all Gaussians; idx : (M,) the stem Gaussians' indices into points (sorted);
     G : (M, M) their neighbour graph; g : (M,) geodesic distance from the base (inf: unreached);
     w0 : level width of the thin tubes (default ``level_width``; wider on a sparse capture).
+    off : (len(sk.members),) bool, the members to treat as off the tubes (default: those off the
+    skeleton's own tubes, :func:`_off_tubes`).
+    add_only : the chains are only added (no branch is re-hung) and their Gaussians are copied
+    to the new nodes, not moved (the coverage pass on swept tubes: the existing tubes keep their
+    measurements and ends).
     """
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
@@ -539,7 +562,7 @@ def _missed_tubes(sk: Skeleton, points: np.ndarray, idx: np.ndarray, G, g: np.nd
     M = len(idx)
     loc = np.searchsorted(idx, sk.members)                     # member slot -> row of G
     flag = np.zeros(M, bool)
-    flag[loc[_off_tubes(sk, points[sk.members], w0)]] = True
+    flag[loc[_off_tubes(sk, points[sk.members], w0) if off is None else off]] = True
     if flag.sum() < 8:
         return sk
     Gc = G.tocoo()
@@ -554,6 +577,7 @@ def _missed_tubes(sk: Skeleton, points: np.ndarray, idx: np.ndarray, G, g: np.nd
     grow = dict(pos=list(sk.pos), par=list(sk.parent), cnt=list(sk.count), spr=list(sk.spread),
                 member_node=sk.member_node.copy())
     rows_off = np.flatnonzero(flag)
+    extra_members, extra_nodes = [], []
     for c in np.unique(comp[rows_off]):
         rows = rows_off[comp[rows_off] == c]
         if len(rows) < 8 or not np.isfinite(g[rows]).all():
@@ -561,13 +585,17 @@ def _missed_tubes(sk: Skeleton, points: np.ndarray, idx: np.ndarray, G, g: np.nd
         ch = _piece_chain(rows, g, Gc, points[idx[rows]], w0)
         if ch is None:
             continue  # a patch, not a tube
-        if not _joins_branch(grow, ch, starts, n0, w0):
+        if add_only:
+            extra_members.append(idx[rows])
+            extra_nodes.append(_append_chain(grow, ch, None, sk.member_node))
+        elif not _joins_branch(grow, ch, starts, n0, w0):
             _append_chain(grow, ch, row_of[rows], sk.member_node)
     if len(grow["pos"]) == n0 and (np.asarray(grow["par"]) == sk.parent).all():
         return sk
     pos = np.asarray(grow["pos"])
     out = Skeleton(pos=pos, parent=np.asarray(grow["par"], np.int64), count=np.asarray(grow["cnt"], np.int64),
-                   members=sk.members, member_node=grow["member_node"], spread=np.asarray(grow["spr"]))
+                   members=np.concatenate([sk.members] + extra_members),
+                   member_node=np.concatenate([grow["member_node"]] + extra_nodes), spread=np.asarray(grow["spr"]))
     new = np.zeros(len(pos), bool)
     new[n0:] = True
     return _reroot(recentre_nodes(out, points, only=new), 0)
@@ -657,9 +685,11 @@ def _joins_branch(grow: dict, ch: _Chain, starts: np.ndarray, n0: int, w0: float
     return True
 
 
-def _append_chain(grow: dict, ch: _Chain, slots: np.ndarray, member_node0: np.ndarray) -> None:
+def _append_chain(grow: dict, ch: _Chain, slots: np.ndarray | None, member_node0: np.ndarray) -> np.ndarray:
     """Add the chain's pieces as nodes (in level order), the lowest hanging from the nearest
-    node; their Gaussians (member ``slots``) move to them."""
+    node; their Gaussians (member ``slots``) move to them. ``slots`` None: nothing moves (the
+    caller adds the Gaussians as new members). Returns (R,) the new node of each of the chain's
+    Gaussians."""
     base = len(grow["pos"])
     old = np.asarray(grow["pos"])
     k = len(ch.cen)
@@ -672,10 +702,13 @@ def _append_chain(grow: dict, ch: _Chain, slots: np.ndarray, member_node0: np.nd
         grow["pos"].append(ch.cen[i])
         grow["cnt"].append(int(ch.n[i]))
         grow["spr"].append(float(np.median(np.linalg.norm(ch.q[ch.piece == i] - ch.cen[i], axis=1))))
+    if slots is None:
+        return new_id[ch.piece]
     grow["member_node"][slots] = new_id[ch.piece]
     cnt_old = np.bincount(member_node0[slots], minlength=base)
     for u in np.flatnonzero(cnt_old):
         grow["cnt"][u] = max(int(grow["cnt"][u]) - int(cnt_old[u]), 0)
+    return new_id[ch.piece]
 
 
 def _kasa_circle(q: np.ndarray) -> tuple[np.ndarray, float, float] | None:
@@ -1368,6 +1401,82 @@ def _prior_radii(sk: Skeleton, obs: np.ndarray, wt: np.ndarray, seg, pts_all: np
     return root_r, min(pet_r, root_r)
 
 
+def _skeleton_tubes(sk: Skeleton, kind: str, seg, pts_all: np.ndarray, fits,
+                    params: StemParams) -> tuple[list[_Tube], float, float]:
+    """(tubes, root radius, petiole radius) of a skeleton: measured radii regularised by
+    Leonardo's rule (the prior alone on the tree skeleton), smoothed axes, seated branches."""
+    obs, wt = _observed_areas(sk, pts_all, params) if kind == "gaussians" else \
+        (np.zeros(len(sk.pos)), np.zeros(len(sk.pos)))
+    root_r, pet_r = _prior_radii(sk, obs, wt, seg, pts_all, fits, params)
+    prior = _leonardo_prior(sk, float(root_r), float(pet_r))
+    # nothing measured (tree skeleton): the prior is the whole answer
+    areas = solve_areas(sk, obs, wt, prior, params) if (wt > 0).any() else prior
+    areas = np.maximum(areas, (0.25 * pet_r) ** 2)
+    return _seat_branches(_tubes(sk, areas, pts_all, params)), float(root_r), float(pet_r)
+
+
+def _tube_residual(tubes: list[_Tube], q: np.ndarray) -> np.ndarray:
+    """(M,) distance of points q (M, 3) outside the swept tubes: distance to the nearest tube's
+    axis minus its radius there (negative inside)."""
+    res = np.full(len(q), np.inf)
+    for tb in tubes:
+        d, t = _polyline_distance(q, tb.axis)
+        res = np.minimum(res, d - np.interp(t, np.arange(len(tb.radii)), tb.radii))
+    return res
+
+
+def _drop_subtrees(sk: Skeleton, drop: np.ndarray) -> Skeleton:
+    """The skeleton without the nodes ``drop`` (n,) bool and everything hanging from them
+    (their Gaussians leave the members); the root is never dropped."""
+    if not drop.any():
+        return sk
+    gone = drop.copy()
+    gone[0] = False
+    for u in range(1, len(sk.pos)):  # BFS order: a parent before its children
+        gone[u] |= gone[sk.parent[u]]
+    keep = ~gone
+    new = np.full(len(sk.pos), -1, np.int64)
+    new[keep] = np.arange(int(keep.sum()))
+    par = sk.parent[keep]
+    mem = keep[sk.member_node]
+    return Skeleton(pos=sk.pos[keep], parent=np.where(par >= 0, new[np.maximum(par, 0)], -1),
+                    count=sk.count[keep], members=sk.members[mem], member_node=new[sk.member_node[mem]],
+                    spread=sk.spread[keep])
+
+
+def _cover_missed(sk: Skeleton, tubes: list[_Tube], points: np.ndarray, params: StemParams) -> Skeleton:
+    """The skeleton with chains added for the stem Gaussians the swept tubes still miss.
+
+    :func:`_missed_tubes` judges the Gaussians against the skeleton's straight node-to-node
+    segments with the nodes' spreads as radii; the tubes are swept along smoothed axes with
+    radii solved under Leonardo's rule, and pruning, smoothing and seating move them: a petiole's
+    last Gaussians beyond its tip, a thin branch's end past a fork, one of two touching parallel
+    petioles can end up outside every tube by several of its radii (the true surface there has no
+    mesh near it). Those Gaussians (outside by more than three robust standard deviations of all
+    the Gaussians' offsets and a quarter of the thin tubes' level width) go through the same
+    chain building as the first pass; the same skeleton (``is``) when none are found.
+    """
+    from scipy.spatial import cKDTree
+
+    ctx = sk.graph
+    if ctx is None or not len(sk.members):
+        return sk
+    res = _tube_residual(tubes, points[sk.members])
+    tau = max(3.0 * 1.4826 * float(np.median(np.abs(res))), 0.25 * float(ctx.w_thin))
+    off = res > 2.0 * tau
+    if off.sum() < 8:
+        return sk
+    out = _missed_tubes(sk, points, ctx.idx, ctx.G, ctx.g, params, ctx.w_thin, off=off, add_only=True)
+    if out is sk:
+        return sk
+    # the old nodes keep their positions; a new node whose circle fit put it inside an existing
+    # tube found that tube's own wall (a second arc of it), not a missed tube: it goes, with
+    # what hangs from it
+    old = cKDTree(sk.pos).query(out.pos)[0] <= 1e-12
+    inside = ~old & (_tube_residual(tubes, out.pos) < 0)
+    return _drop_subtrees(out, inside)
+
+
 def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
                colors=None) -> Stem:
     """The stem as smooth swept tubes (module docstring).
@@ -1389,15 +1498,12 @@ def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
     if sk is None or len(sk.pos) < 2:
         log.warning("stem: the segmentation tree has no stem edges and no stem Gaussians; writing no stem")
         return _empty_stem()
-    obs, wt = _observed_areas(sk, pts_all, params) if kind == "gaussians" else \
-        (np.zeros(len(sk.pos)), np.zeros(len(sk.pos)))
-    root_r, pet_r = _prior_radii(sk, obs, wt, seg, pts_all, fits, params)
-    prior = _leonardo_prior(sk, float(root_r), float(pet_r))
-    # nothing measured (tree skeleton): the prior is the whole answer
-    areas = solve_areas(sk, obs, wt, prior, params) if (wt > 0).any() else prior
-    floor = (0.25 * pet_r) ** 2
-    areas = np.maximum(areas, floor)
-    tubes = _seat_branches(_tubes(sk, areas, pts_all, params))
+    tubes, root_r, pet_r = _skeleton_tubes(sk, kind, seg, pts_all, fits, params)
+    if kind == "gaussians" and tubes:
+        covered = _cover_missed(sk, tubes, pts_all, params)
+        if covered is not sk:
+            sk = covered
+            tubes, root_r, pet_r = _skeleton_tubes(sk, kind, seg, pts_all, fits, params)
     if not tubes:
         log.warning("stem: no tube could be swept; writing no stem")
         return _empty_stem()

@@ -327,3 +327,57 @@ def test_sparse_tube_has_no_spurious_forks():
     mid = 0.5 * (st.starts + st.ends).astype(float)
     body = (mid[:, 2] > 0.05) & (mid[:, 2] < 0.75)
     assert np.percentile(cKDTree(fine).query(mid[body])[0], 90) < 0.5 * 0.02
+
+
+def _cane_skeleton_and_tubes():
+    seg, pts, pet = _cane_with_petiole()
+    sk = M.gaussian_skeleton(pts, seg.labels, seg.root_index, StemParams())
+    tubes, _, _ = M._skeleton_tubes(sk, "gaussians", seg, pts, None, StemParams())
+    return seg, pts, pet, sk, tubes
+
+
+def test_coverage_pass_adds_a_tube_for_gaussians_the_tubes_miss():
+    """The swept tubes (smoothed, radii under Leonardo's rule, seated) can miss Gaussians the
+    skeleton covered: a petiole's end beyond its tip, a petiole inside a branch's level set.
+    With the petiole's tube taken away, the coverage pass finds its Gaussians outside every tube
+    and adds a chain that reaches the petiole's end."""
+    seg, pts, pet, sk, tubes = _cane_skeleton_and_tubes()
+    far = [i for i, tb in enumerate(tubes) if np.linalg.norm(tb.axis - pet[-1], axis=1).min() < 0.01]
+    assert far, "the petiole has a tube of its own"
+    missing = [tb for i, tb in enumerate(tubes) if i not in far]
+    assert M._tube_residual(missing, pet[-1:]).min() > 0.01  # the petiole's end is off the tubes
+    out = M._cover_missed(sk, missing, pts, StemParams())
+    assert out is not sk and len(out.pos) > len(sk.pos)
+    again, _, _ = M._skeleton_tubes(out, "gaussians", seg, pts, None, StemParams())
+    assert M._tube_residual(again, pet[-1:]).min() < 0.004
+
+
+def test_coverage_pass_drops_chains_inside_a_tube(monkeypatch):
+    """Gaussians outside a stretch of tube swept too thin are that tube's own wall: the chain
+    built from them is centred back onto the tube's axis, inside it, and is dropped (no tube
+    inside a tube)."""
+    seg, pts, pet, sk, tubes = _cane_skeleton_and_tubes()
+    cane = tubes[0]
+    stretch = (cane.axis[:, 2] > 0.1) & (cane.axis[:, 2] < 0.2)
+    tubes[0] = M._Tube(axis=cane.axis, radii=np.where(stretch, 0.5, 1.0) * cane.radii, cap_start=True,
+                       parent_tube=-1, attach=cane.attach, stream=cane.stream, own=cane.own)
+
+    def on_axis(s):
+        return int(((np.linalg.norm(s.pos[:, :2], axis=1) < 0.005) & (s.pos[:, 2] > 0.1) & (s.pos[:, 2] < 0.2)).sum())
+
+    out = M._cover_missed(sk, tubes, pts, StemParams())
+    assert on_axis(out) == on_axis(sk)
+    assert len(out.pos) <= len(sk.pos) + 2
+    # without the check, a second cane runs inside the first
+    monkeypatch.setattr(M, "_drop_subtrees", lambda s, drop: s)
+    assert on_axis(M._cover_missed(sk, tubes, pts, StemParams())) >= on_axis(sk) + 5
+
+
+def test_stem_build_runs_the_coverage_pass(monkeypatch):
+    """build_stem sweeps the tubes again when the coverage pass adds chains."""
+    seg, pts, pet = _cane_with_petiole()
+    calls = []
+    real = M._cover_missed
+    monkeypatch.setattr(M, "_cover_missed", lambda *a, **k: calls.append(1) or real(*a, **k))
+    build_stem(seg, pts, None, StemParams())
+    assert calls == [1]
