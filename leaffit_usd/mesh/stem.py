@@ -1444,6 +1444,26 @@ def _drop_subtrees(sk: Skeleton, drop: np.ndarray) -> Skeleton:
                     spread=sk.spread[keep])
 
 
+def _hysteresis(ctx: _GraphContext, members: np.ndarray, weak: np.ndarray, strong: np.ndarray) -> np.ndarray:
+    """(len(members),) bool: the ``weak`` members connected (neighbour graph, through weak
+    members) to a ``strong`` one — a miss is found by its far core and taken whole, out to where
+    its Gaussians meet a tube."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    M = len(ctx.idx)
+    loc = np.searchsorted(ctx.idx, members)
+    w = np.zeros(M, bool)
+    w[loc[weak]] = True
+    Gc = ctx.G.tocoo()
+    e = w[Gc.row] & w[Gc.col]
+    _, comp = connected_components(coo_matrix((np.ones(int(e.sum())), (Gc.row[e], Gc.col[e])), shape=(M, M)),
+                                   directed=False)
+    hit = np.zeros(M, bool)
+    hit[np.unique(comp[loc[strong & weak]])] = True
+    return weak & hit[comp[loc]]
+
+
 def _cover_missed(sk: Skeleton, tubes: list[_Tube], points: np.ndarray, params: StemParams) -> Skeleton:
     """The skeleton with chains added for the stem Gaussians the swept tubes still miss.
 
@@ -1452,9 +1472,11 @@ def _cover_missed(sk: Skeleton, tubes: list[_Tube], points: np.ndarray, params: 
     radii solved under Leonardo's rule, and pruning, smoothing and seating move them: a petiole's
     last Gaussians beyond its tip, a thin branch's end past a fork, one of two touching parallel
     petioles can end up outside every tube by several of its radii (the true surface there has no
-    mesh near it). Those Gaussians (outside by more than three robust standard deviations of all
-    the Gaussians' offsets and a quarter of the thin tubes' level width) go through the same
-    chain building as the first pass; the same skeleton (``is``) when none are found.
+    mesh near it). Those Gaussians go through the same chain building as the first pass: the
+    groups of Gaussians outside the tubes by more than the first pass's threshold (three robust
+    standard deviations of all the offsets, a quarter of the thin tubes' level width) that
+    reach twice as far out somewhere (a miss, not the tubes' own noise). The same skeleton
+    (``is``) when none are found.
     """
     from scipy.spatial import cKDTree
 
@@ -1463,7 +1485,7 @@ def _cover_missed(sk: Skeleton, tubes: list[_Tube], points: np.ndarray, params: 
         return sk
     res = _tube_residual(tubes, points[sk.members])
     tau = max(3.0 * 1.4826 * float(np.median(np.abs(res))), 0.25 * float(ctx.w_thin))
-    off = res > 2.0 * tau
+    off = _hysteresis(ctx, sk.members, res > tau, res > 2.0 * tau)
     if off.sum() < 8:
         return sk
     out = _missed_tubes(sk, points, ctx.idx, ctx.G, ctx.g, params, ctx.w_thin, off=off, add_only=True)
