@@ -381,3 +381,17 @@ def test_stem_build_runs_the_coverage_pass(monkeypatch):
     monkeypatch.setattr(M, "_cover_missed", lambda *a, **k: calls.append(1) or real(*a, **k))
     build_stem(seg, pts, None, StemParams())
     assert calls == [1]
+
+
+def test_coverage_hysteresis_takes_a_miss_whole():
+    """A group of Gaussians off the tubes counts when part of it is far out (strong), and then
+    all of it down to the weak threshold; a group only weakly off (the tubes' noise) does not."""
+    x = np.r_[np.linspace(0, 0.1, 21), np.linspace(0.3, 0.4, 21)]
+    pts = np.stack([x, np.zeros_like(x), np.zeros_like(x)], 1)
+    G, _ = M._neighbour_graph(pts, 4)
+    ctx = M._GraphContext(idx=np.arange(len(pts)), G=G.tocsr(), g=x.copy(), w_thin=0.01)
+    weak = np.ones(len(pts), bool)
+    strong = np.zeros(len(pts), bool)
+    strong[20] = True  # the far end of the first group only
+    out = M._hysteresis(ctx, np.arange(len(pts)), weak, strong)
+    assert out[:21].all() and not out[21:].any()
