@@ -33,7 +33,7 @@ class MeshParams:
         box-filters down (premultiplied), then divides by the accumulated alpha
     clean_outline : re-triangulate the sheet inside a smooth outline curve (constrained
         Delaunay, :func:`surface.remesh_sheet`); the fine serration stays in the alpha cut-out
-    outline_grow : the clean outline moves out to the template splats' silhouette (alpha =
+    outline_grow : the clean outline grows out to the template splats' silhouette (alpha =
         ``alpha_threshold``), at most this many sample spacings (:mod:`.outline_fit`; the
         Gaussians' centres stop short of the leaf's edge); 0 = the outline stays on the centres
     lod_vertices : vertex budgets of the coarser levels of detail (per side)

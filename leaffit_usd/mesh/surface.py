@@ -651,26 +651,24 @@ def _extrapolate_z(P: np.ndarray, q: np.ndarray, k: int = 12) -> np.ndarray:
     return coef[:, 2] + (d * coef[:, :2]).sum(1)
 
 
-def _grown_outline(outline: np.ndarray, grow, step: float, iterations: int = 12) -> np.ndarray:
-    """A CCW outline (n, 2) moved out by ``grow`` (offsets along the outward normals) in
-    ``iterations`` steps of at most ``step`` each, the normals recomputed after each step (one
-    big step crosses itself where the normals of a notch converge); a step that would make the
-    polygon non-simple is halved once, then the growth stops there."""
-    for _ in range(iterations):
-        tang = np.roll(outline, -1, 0) - np.roll(outline, 1, 0)
-        nrm = np.stack([tang[:, 1], -tang[:, 0]], 1)          # outward for a CCW outline
-        nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-300)
-        off = np.minimum(np.asarray(grow(outline, nrm), np.float64), step)
-        if off.max() <= 0.01 * step:
-            break
-        for scale in (1.0, 0.5):
-            grown = outline + scale * off[:, None] * nrm
-            if signed_area_xy(grown) > 0 and _simple_polygon(grown):
-                break
-        else:
-            break
-        outline = grown
-    return outline
+def _grown_outline(outline: np.ndarray, grow, h: float, max_n: int) -> np.ndarray:
+    """The smooth CCW outline (n, 2) replaced by ``grow(outline)`` (the grown region's boundary,
+    a pixel staircase: :func:`leaffit_usd.mesh.outline_fit.silhouette_outline`) smoothed by a
+    spline to within a pixel (RMS) and resampled every ``h`` (at most ``max_n`` vertices); the outline itself when the grown
+    one is empty or not a simple CCW polygon."""
+    region = np.asarray(grow(outline), np.float64).reshape(-1, 2)
+    if len(region) < 8:
+        return outline
+    px = float(np.median(np.linalg.norm(region - np.roll(region, -1, 0), axis=1)))
+    try:
+        dense = smooth_outline(region, len(region), px)
+        perim = float(np.linalg.norm(dense - np.roll(dense, -1, 0), axis=1).sum())
+        grown = smooth_outline(dense, min(max(int(round(perim / h)), 8), max(max_n, 8)), 1e-6 * px)
+    except (ValueError, TypeError):
+        return outline
+    if signed_area_xy(grown) <= 0 or not _simple_polygon(grown):
+        return outline
+    return grown
 
 
 def remesh_sheet(points: np.ndarray, faces: np.ndarray, n_vertices: int,
@@ -687,10 +685,11 @@ def remesh_sheet(points: np.ndarray, faces: np.ndarray, n_vertices: int,
     Returns None when the sheet is not a height field or the result is not a clean disk (the
     caller keeps the old sheet).
 
-    grow : optional ``grow(outline (n, 2), outward_normals (n, 2)) -> offsets (n,)``: the smooth
-        outline's vertices are moved that far along their outward normals (e.g. out to the
-        splats' silhouette, :func:`leaffit_usd.mesh.outline_fit.silhouette_grow`); ignored when
-        the grown outline is not a simple polygon.
+    grow : optional ``grow(outline (n, 2)) -> (m, 2)``: the boundary of a region grown out
+        from the smooth outline (out to the splats' silhouette,
+        :func:`leaffit_usd.mesh.outline_fit.silhouette_outline`), which becomes the outline
+        (smoothed to within a pixel, resampled every spacing); ignored when it is not a simple
+        polygon.
     """
     import triangle as tr
     from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
@@ -727,7 +726,8 @@ def remesh_sheet(points: np.ndarray, faces: np.ndarray, n_vertices: int,
     if not _simple_polygon(outline):
         return None
     if grow is not None:
-        outline = _grown_outline(outline, grow, 0.5 * h)
+        outline = _grown_outline(outline, grow, h, n_vertices)
+        n_b = len(outline)
     inside = _points_in_polygon(P[:, :2], outline) & (_segment_distance(P[:, :2], outline) > 0.5 * h)
     cand = np.flatnonzero(inside)
     n_in = max(n_vertices - n_b, 0)

@@ -68,7 +68,7 @@ from leaffit_usd.mesh.params import MeshParams
 from leaffit_usd.mesh.quality_report import quality_report
 from leaffit_usd.mesh.result import TemplateLOD, TemplateMesh
 from leaffit_usd.mesh.sheet_choice import build_sheet
-from leaffit_usd.mesh.outline_fit import silhouette_grow, splat_alpha_image
+from leaffit_usd.mesh.outline_fit import silhouette_outline, splat_alpha_image
 from leaffit_usd.mesh.template_gaussians import template_gaussians_local, template_row
 from leaffit_usd.mesh.texture_bake import bake_textures
 from leaffit_usd.mesh.texture_files import to_u8, write_textures
@@ -162,7 +162,7 @@ def _silhouette_grow(cloud_working, fits, rot, samples, params: MeshParams):
         return None
     max_out = float(params.outline_grow) * surf.sample_spacing(samples)
     alpha, bounds = splat_alpha_image(means, cov, opac, pad=2.0 * max_out)
-    return silhouette_grow(alpha, bounds, float(params.alpha_threshold), max_out)
+    return silhouette_outline(alpha, bounds, float(params.alpha_threshold), max_out)
 
 
 def two_sided(P: np.ndarray, F: np.ndarray, chart: UVChart, rotation=None) -> TemplateLOD:
