@@ -14,6 +14,8 @@ _ROOT_SAMPLE = 60_000      # points used for the connected-component analysis of
                            # sampled plants: hard4 apple's root and height changed)
 _ROOT_GRAPH_K = 10         # neighbours per sample in that analysis
 _ROOT_FAR = 0.10           # --root X,Y,Z must lie within this fraction of the plant size
+_JOIN_SHARE = 0.002        # a component of at least this share of the samples can join the blob
+_JOIN_GAP = 0.15           # ... when within this fraction of the largest one's size of the blob
 
 
 def plant_size(points: np.ndarray) -> float:
@@ -24,13 +26,21 @@ def plant_size(points: np.ndarray) -> float:
 
 
 class MainBlob:
-    """The largest connected blob of a capture (the plant without its floaters).
+    """The plant's connected blob in a capture: its largest connected component, with the large
+    components near it (the plant without its floaters).
 
-    Connectivity is computed on a deterministic, file-order-free subsample (<= 60k points): each sample is linked
-    to its 10 nearest neighbours closer than 4x the median 4-NN spacing (O(n k) edges whatever
-    the density). A point belongs to the blob when its nearest sample does and is closer than
-    that radius. :meth:`contains` classifies any points; querying only the few points that
-    matter (the lowest, the highest) keeps a 1M-Gaussian capture fast.
+    Connectivity is computed on a deterministic, file-order-free subsample (<= 60k points): each
+    sample is linked to its 10 nearest neighbours closer than 4x the median 4-NN spacing (O(n k)
+    edges whatever the density). A plant is often several such components: a thin or sparsely
+    sampled stem, a hole in uneven density or a gap where a petiole meets the stem cuts it
+    (the trimmed rubber tree's stem and lower leaves were 12k of 60k samples apart from the
+    canopy's 38k, so the "lowest point" was a leaf tip 0.42 x the height above the stem base).
+    So components of at least ``_JOIN_SHARE`` of the samples join the largest when they lie
+    within ``_JOIN_GAP`` x its size (bounding-box diagonal) of what has joined, transitively;
+    floaters (single Gaussians, small clumps) and far objects stay out. A point belongs to the
+    blob when its nearest sample does and is closer than the linking radius. :meth:`contains`
+    classifies any points; querying only the few points that matter (the lowest, the highest)
+    keeps a 1M-Gaussian capture fast.
     """
 
     def __init__(self, points: np.ndarray):
@@ -55,7 +65,7 @@ class MainBlob:
         g = coo_matrix((np.ones(len(rows)), (rows, nb[:, 1:].ravel()[ok.ravel()])),
                        shape=(len(s), len(s)))
         _, lab = connected_components(g, directed=False)
-        self.sample_in = lab == np.bincount(lab).argmax()
+        self.sample_in = _join_near_components(s, lab)
 
     def contains(self, points: np.ndarray) -> np.ndarray:
         """(M, 3) input frame -> (M,) bool."""
@@ -81,6 +91,36 @@ class MainBlob:
             if len(inside):
                 return int(idx[inside[0]])
         return int(order[0])
+
+
+def _join_near_components(s: np.ndarray, lab: np.ndarray) -> np.ndarray:
+    """(M,) bool: the samples ``s`` (M, 3) of the largest component (labels ``lab`` (M,)) and of
+    the components of at least ``_JOIN_SHARE`` x M samples within ``_JOIN_GAP`` x the largest
+    one's bounding-box diagonal of it or of one that joined it (transitively). Ties between
+    equal-sized components go to the lowest label (deterministic: labels follow sample order)."""
+    from scipy.spatial import cKDTree
+
+    cnt = np.bincount(lab)
+    joined = np.zeros(len(cnt), bool)
+    joined[int(cnt.argmax())] = True
+    inside = joined[lab]
+    big = np.flatnonzero((cnt >= max(_JOIN_SHARE * len(s), 2)) & ~joined)
+    if not len(big):
+        return inside
+    gap = _JOIN_GAP * float(np.linalg.norm(np.ptp(s[inside], axis=0)))
+    new = inside
+    for _ in range(len(big)):  # grow by the large components near what joined last
+        cand = np.isin(lab, big[~joined[big]])
+        if not cand.any():
+            break
+        dist, _ = cKDTree(s[new]).query(s[cand], k=1, distance_upper_bound=gap)
+        near = np.unique(lab[cand][np.isfinite(dist)])
+        if not len(near):
+            break
+        joined[near] = True
+        new = np.isin(lab, near)
+        inside = inside | new
+    return inside
 
 
 def height_range(points: np.ndarray, up: np.ndarray, blob: MainBlob) -> tuple[int, int, np.ndarray]:

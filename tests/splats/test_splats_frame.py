@@ -222,3 +222,34 @@ def test_make_frame_normalises_plant():
     with pytest.raises(ParameterError):
         make_frame(sp.cloud, up="sideways")
 
+
+
+def test_root_auto_joins_a_stem_cut_off_from_the_canopy():
+    """The lower stem is a connected component of its own (a gap where it is sparsely sampled):
+    the automatic root is still its base, not the lowest point of the canopy's component (the
+    trimmed rubber tree's root was a leaf 0.4 x the height above the stem base), and a small
+    clump under the plant still does not count."""
+    from leaffit_usd.splats.cloud import GaussianCloud
+
+    sp = make_plant(4, n_floaters=0, rotate=False)
+    c = sp.cloud
+    h = (c.means - sp.root) @ sp.up
+    stem_piece = np.linalg.norm(np.cross(c.means - sp.root, sp.up), axis=1) < 0.05 * sp.height
+    gap = stem_piece & (h > 0.08 * sp.height) & (h < 0.2 * sp.height)
+    below = sp.root - 0.5 * sp.height * sp.up
+    clump = below + np.random.default_rng(0).normal(0, 0.005 * sp.height, (12, 3))
+    keep = np.flatnonzero(~gap)
+    pts = np.concatenate([c.means[keep], clump]).astype(np.float32)
+    n = len(clump)
+    cut = GaussianCloud(means=pts, log_scales=np.concatenate([c.log_scales[keep], np.repeat(c.log_scales[:1], n, 0)]),
+                        quats=np.concatenate([c.quats[keep], np.repeat(c.quats[:1], n, 0)]),
+                        opacity_logits=np.concatenate([c.opacity_logits[keep], np.zeros(n, np.float32)]),
+                        sh=np.concatenate([c.sh[keep], np.repeat(c.sh[:1], n, 0)]))
+    from leaffit_usd.splats.root import MainBlob
+
+    blob = MainBlob(cut.means)
+    lower = ((cut.means[:len(keep)] - sp.root) @ sp.up < 0.08 * sp.height)
+    assert blob.contains(cut.means[:len(keep)][lower]).all()
+    assert not blob.contains(clump).any()
+    i = resolve_root(cut, None, None, sp.up)
+    assert np.linalg.norm(cut.means[i] - sp.root) < ROOT_TOL * sp.height
