@@ -9,10 +9,13 @@ Generation", extended).
    the axis), linked to the piece of the previous level it touches. Short terminal spurs are
    pruned. Stem Gaussians off every tube of that skeleton (a thin petiole or a branch base
    that the wide level sets of a thick stem swallowed) become extra chains
-   (:func:`_missed_tubes`); once the tubes are swept, the Gaussians still far outside all of
-   them go through the same chain building once more, and the tubes are swept again
-   (:func:`_cover_missed`). When the capture has too few stem Gaussians the segmentation's
-   rootward tree is the skeleton instead (``skeleton="tree"``, the paper's).
+   (:func:`_missed_tubes`). A branch that shared its parent's level sets past the true fork is
+   re-hung where its own direction meets the parent (:func:`continue_branches`). Once the
+   tubes are swept, the Gaussians still far outside all of them go through the same chain
+   building once more (groups too short for level sets, down to 4 Gaussians, as one node), and
+   the tubes are swept again (:func:`_cover_missed`). When the capture has too few stem
+   Gaussians the segmentation's rootward tree is the skeleton instead (``skeleton="tree"``, the
+   paper's).
 2. **Streams.** At every junction the child with the longest subtree continues its parent, so
    the main stem is one tube from the root to its top and every branch / petiole one tube
    starting *on its parent's axis* (the junction is continuous: the branch grows out of the
@@ -59,6 +62,10 @@ DEFAULT_PETIOLE_RADIUS = 0.003
 SKELETONS = ("auto", "gaussians", "tree")
 # (sides, ring spacing multiplier) of the coarser levels of detail, after LOD0's own
 LOD_LEVELS = ((8, 2.0), (5, 4.0))
+# the coverage pass (tubes already swept) takes groups of off-tube Gaussians from this size on:
+# four points are the fewest that give a direction beyond their centroid (the first pass, which
+# builds the tubes, still wants 8 and level sets)
+_SMALL_MIN = 4
 
 
 @dataclass
@@ -502,6 +509,7 @@ def gaussian_skeleton(points: np.ndarray, labels: np.ndarray, root_index: int,
     # graph's reach
     w_thin = max(float(params.level_width), float(params.reach_level_ratio) * reach)
     sk = _missed_tubes(sk, points, idx, G, g, params, w_thin)
+    sk = continue_branches(sk, w)
     sk.graph = _GraphContext(idx=idx, G=G, g=g, w_thin=w_thin)
     return sk
 
@@ -563,7 +571,7 @@ def _missed_tubes(sk: Skeleton, points: np.ndarray, idx: np.ndarray, G, g: np.nd
     loc = np.searchsorted(idx, sk.members)                     # member slot -> row of G
     flag = np.zeros(M, bool)
     flag[loc[_off_tubes(sk, points[sk.members], w0) if off is None else off]] = True
-    if flag.sum() < 8:
+    if flag.sum() < (_SMALL_MIN if add_only else 8):
         return sk
     Gc = G.tocoo()
     e = flag[Gc.row] & flag[Gc.col]
@@ -580,9 +588,11 @@ def _missed_tubes(sk: Skeleton, points: np.ndarray, idx: np.ndarray, G, g: np.nd
     extra_members, extra_nodes = [], []
     for c in np.unique(comp[rows_off]):
         rows = rows_off[comp[rows_off] == c]
-        if len(rows) < 8 or not np.isfinite(g[rows]).all():
+        if not np.isfinite(g[rows]).all():
             continue
-        ch = _piece_chain(rows, g, Gc, points[idx[rows]], w0)
+        ch = _piece_chain(rows, g, Gc, points[idx[rows]], w0) if len(rows) >= 8 else None
+        if ch is None and add_only and len(rows) >= _SMALL_MIN:
+            ch = _single_chain(points[idx[rows]])
         if ch is None:
             continue  # a patch, not a tube
         if add_only:
@@ -660,6 +670,15 @@ def _piece_chain(rows: np.ndarray, g: np.ndarray, Gc, q: np.ndarray, w0: float) 
         first = np.r_[True, (key // k)[o][1:] != (key // k)[o][:-1]]
         p_par[(key // k)[o][first]] = (key % k)[o][first]
     return _Chain(piece=piece, cen=cen, n=n_p, lvl=p_lvl, par=p_par, q=q)
+
+
+def _single_chain(q: np.ndarray) -> _Chain:
+    """A group of off-tube Gaussians too short for level sets (fewer than 8, or spanning less
+    than a level width: a tube's last piece past a fork, the end of one of two touching
+    petioles) as one node at its centroid: it hangs from the nearest node and, once swept,
+    becomes a short tube from there that reaches its farthest Gaussian."""
+    return _Chain(piece=np.zeros(len(q), np.int64), cen=q.mean(0)[None], n=np.array([len(q)]),
+                  lvl=np.zeros(1, np.int64), par=np.full(1, -1, np.int64), q=q)
 
 
 def _joins_branch(grow: dict, ch: _Chain, starts: np.ndarray, n0: int, w0: float) -> bool:
@@ -783,6 +802,84 @@ def recentre_nodes(sk: Skeleton, points: np.ndarray, rounds: int = 2,
         pos, spread = new_pos, new_spread
     return Skeleton(pos=pos, parent=sk.parent, count=sk.count, members=sk.members,
                     member_node=sk.member_node, spread=spread)
+
+
+def _chain_up(sk: Skeleton, kids: list[list[int]], c: int, length: float) -> list[int] | None:
+    """Nodes from ``c`` along its single-child descendants within ``length`` of ``c`` (along
+    the chain), or None when the chain ends (a tip or a fork) before it is that long."""
+    out, u, run = [c], c, 0.0
+    while len(kids[u]) == 1:
+        v = kids[u][0]
+        run += float(np.linalg.norm(sk.pos[v] - sk.pos[u]))
+        if run > length:
+            return out
+        out.append(v)
+        u = v
+    return None
+
+
+def continue_branches(sk: Skeleton, w: float, min_angle: float = 25.0) -> Skeleton:
+    """Branches re-hung where their own direction meets their parent (direction continuity).
+
+    A thin branch leaving a thicker tube shares the thicker one's level-set pieces for a while
+    (slabs as wide as the thick tube, or as the graph's reach on a sparse capture): its chain
+    starts at a junction above the true fork, the junction's centroid mixes both tubes, and the
+    branch's first segment runs back down to it (a detour off both tubes). The branch's first
+    ``4 w`` (level width ``w``), when it runs that far without forking, give a line (principal
+    direction of its nodes); extended backwards it meets the parent's axis where the branch
+    really leaves. The branch then hangs from the ancestor of its junction (within ``4 w`` down
+    the parent) nearest that line, when that ancestor lies on the line (within its radius,
+    ``spread``, and within half the junction's own distance to the line). Only branches leaving
+    at more than ``min_angle`` degrees from the parent's direction: the parent's continuation is
+    collinear with every node below the junction and stays where it is.
+
+    sk : the skeleton (working frame); returns a new one (BFS order), or ``sk`` unchanged.
+    """
+    n = len(sk.pos)
+    if n < 4:
+        return sk
+    kids = sk.children()
+    par = sk.parent.copy()
+    cos_max = np.cos(np.radians(min_angle))
+    for j in range(n):
+        if len(kids[j]) < 2 or sk.parent[j] < 0:
+            continue
+        down = [j]  # j and its ancestors within 4 w
+        run, u = 0.0, j
+        while sk.parent[u] >= 0 and run <= 4.0 * w:
+            run += float(np.linalg.norm(sk.pos[u] - sk.pos[sk.parent[u]]))
+            u = int(sk.parent[u])
+            down.append(u)
+        if len(down) < 2:
+            continue
+        t_par = sk.pos[j] - sk.pos[down[-1]]
+        if np.linalg.norm(t_par) < 1e-12:
+            continue
+        t_par /= np.linalg.norm(t_par)
+        for c in kids[j]:
+            chain = _chain_up(sk, kids, c, 4.0 * w)
+            if chain is None or len(chain) < 3:
+                continue
+            P = sk.pos[chain]
+            cen = P.mean(0)
+            d = np.linalg.svd(P - cen)[2][0]
+            if d @ (P[-1] - P[0]) < 0:
+                d = -d
+            if abs(float(d @ t_par)) > cos_max:
+                continue
+            rel = sk.pos[down] - P[0]
+            t = rel @ d
+            dist = np.linalg.norm(rel - t[:, None] * d, axis=1)
+            dist = np.where(t < 0, dist, np.inf)  # behind the branch's start only
+            k = int(np.argmin(dist))
+            a = down[k]
+            if k == 0 or not np.isfinite(dist[k]) or dist[k] > sk.spread[a] or dist[k] > 0.5 * dist[0]:
+                continue
+            par[c] = a
+    if (par == sk.parent).all():
+        return sk
+    return _reroot(Skeleton(pos=sk.pos, parent=par, count=sk.count, members=sk.members,
+                            member_node=sk.member_node, spread=sk.spread), 0)
 
 
 def centre_junctions(sk: Skeleton) -> Skeleton:
@@ -1486,7 +1583,7 @@ def _cover_missed(sk: Skeleton, tubes: list[_Tube], points: np.ndarray, params: 
     res = _tube_residual(tubes, points[sk.members])
     tau = max(3.0 * 1.4826 * float(np.median(np.abs(res))), 0.25 * float(ctx.w_thin))
     off = _hysteresis(ctx, sk.members, res > tau, res > 2.0 * tau)
-    if off.sum() < 8:
+    if off.sum() < _SMALL_MIN:
         return sk
     out = _missed_tubes(sk, points, ctx.idx, ctx.G, ctx.g, params, ctx.w_thin, off=off, add_only=True)
     if out is sk:

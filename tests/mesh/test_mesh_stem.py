@@ -365,9 +365,15 @@ def test_coverage_pass_drops_chains_inside_a_tube(monkeypatch):
     def on_axis(s):
         return int(((np.linalg.norm(s.pos[:, :2], axis=1) < 0.005) & (s.pos[:, 2] > 0.1) & (s.pos[:, 2] < 0.2)).sum())
 
+    def in_stretch(s):
+        return int(((s.pos[:, 2] > 0.1) & (s.pos[:, 2] < 0.2)).sum())
+
     out = M._cover_missed(sk, tubes, pts, StemParams())
     assert on_axis(out) == on_axis(sk)
-    assert len(out.pos) <= len(sk.pos) + 2
+    # at most a node or two in the stretch (a patch too small for a circle fit stays on the
+    # wall); elsewhere the pass may add nodes (this fixture's petiole is swept at the wrong
+    # angle, its Gaussians outside it are covered too)
+    assert in_stretch(out) <= in_stretch(sk) + 2
     # without the check, a second cane runs inside the first
     monkeypatch.setattr(M, "_drop_subtrees", lambda s, drop: s)
     assert on_axis(M._cover_missed(sk, tubes, pts, StemParams())) >= on_axis(sk) + 5
@@ -395,3 +401,84 @@ def test_coverage_hysteresis_takes_a_miss_whole():
     strong[20] = True  # the far end of the first group only
     out = M._hysteresis(ctx, np.arange(len(pts)), weak, strong)
     assert out[:21].all() and not out[21:].any()
+
+
+def test_coverage_pass_takes_a_tube_end_too_short_for_level_sets():
+    """A petiole's end past its tube's end with only 6 Gaussians (fewer than the 8 a chain of
+    level sets needs, spanning about one level width): the coverage pass gives it one node, and
+    the tubes swept again reach it. The old pass left it off the mesh by up to 5 radii."""
+    rng = np.random.default_rng(2)
+    body = _tube_gaussians(rng, np.array([[0, 0, 0.0], [0, 0, 0.25]]), 0.004, 1500)
+    a = np.arange(6) * 2.4
+    end = np.stack([0.004 * np.cos(a), 0.004 * np.sin(a), np.linspace(0.252, 0.27, 6)], 1)
+    pts = np.concatenate([body, end])
+    seg = Segmentation(labels=np.zeros(len(pts), np.int32), root_index=int(np.argmin(pts[:, 2])))
+    sk = M.gaussian_skeleton(pts, seg.labels, seg.root_index, StemParams())
+    tubes, _, _ = M._skeleton_tubes(sk, "gaussians", seg, pts, None, StemParams())
+    # the swept tube stops short of the last Gaussians (as smoothing / pruning can leave it)
+    cut = [M._Tube(axis=tb.axis[tb.axis[:, 2] <= 0.248], radii=tb.radii[tb.axis[:, 2] <= 0.248],
+                   cap_start=tb.cap_start, parent_tube=tb.parent_tube, attach=tb.attach,
+                   stream=tb.stream, own=tb.own) for tb in tubes]
+    assert M._tube_residual(cut, end).max() > 0.015
+    out = M._cover_missed(sk, cut, pts, StemParams())
+    assert out is not sk and len(out.pos) == len(sk.pos) + 1
+    assert abs(out.pos[-1, 2] - end[:, 2].mean()) < 0.005
+    again, _, _ = M._skeleton_tubes(out, "gaussians", seg, pts, None, StemParams())
+    assert M._tube_residual(again, end).max() < 0.004
+
+
+def _thin_branch_on_sparse_stem(seed=4):
+    """A sparsely captured stem (r 0.015, 800 Gaussians over 0.6) and a thin branch (r 0.004,
+    0.2 long) leaving its axis at z 0.3 at 50 degrees: the level sets (as wide as the stem's base
+    and the sparse graph's reach) hold both tubes for a while past the fork."""
+    rng = np.random.default_rng(seed)
+    main = np.array([[0, 0, 0.0], [0, 0, 0.6]])
+    d = np.array([np.sin(np.radians(50)), 0, np.cos(np.radians(50))])
+    br = np.stack([np.array([0, 0, 0.3]) + s * d for s in np.linspace(0, 0.2, 20)])
+    pts = np.concatenate([_tube_gaussians(rng, main, 0.015, 800), _tube_gaussians(rng, br[1:], 0.004, 150)])
+    seg = Segmentation(labels=np.zeros(len(pts), np.int32), root_index=int(np.argmin(pts[:, 2])))
+    return seg, pts, br
+
+
+def test_branch_leaves_where_its_direction_meets_the_parent(monkeypatch):
+    """The thin branch's junction is found above the fork; re-hung where its own line meets the
+    stem, the mesh near the fork stays on the two true surfaces (without it a detour 2x the
+    branch's radius off both)."""
+    from scipy.spatial import cKDTree
+
+    seg, pts, br = _thin_branch_on_sparse_stem()
+    fine = np.concatenate([np.linspace(br[i], br[i + 1], 10) for i in range(len(br) - 1)])
+
+    def off_near_fork(st):
+        q = st.points.astype(float)
+        q = q[np.linalg.norm(q - [0, 0, 0.3], axis=1) < 0.08]
+        return float(np.minimum(np.abs(np.linalg.norm(q[:, :2], axis=1) - 0.015),
+                                np.abs(cKDTree(fine).query(q)[0] - 0.004)).max())
+
+    st = build_stem(seg, pts, None, StemParams())
+    assert st.info["tubes"] == 2 and off_near_fork(st) < 0.004
+    monkeypatch.setattr(M, "continue_branches", lambda sk, w, **k: sk)
+    assert off_near_fork(build_stem(seg, pts, None, StemParams())) > 0.008
+
+
+def test_continue_branches_moves_only_a_diverging_branch():
+    """On a hand-made skeleton: a vertical parent (nodes every 0.01), a branch at 45 degrees that
+    truly leaves at z 0.03 but hangs from z 0.06 is re-hung from the z 0.03 node; the parent's
+    continuation and a branch whose line misses the parent stay where they are."""
+    z = np.arange(11) * 0.01
+    parent_pos = np.stack([0 * z, 0 * z, z], 1)
+    d = np.array([1.0, 0, 1.0]) / np.sqrt(2)
+    branch = np.array([0, 0, 0.03]) + np.outer(0.01 * np.arange(1, 8), d)  # truly from z 0.03
+    miss = np.array([0, 0.05, 0.03]) + np.outer(0.01 * np.arange(1, 8), d)  # 0.05 off the parent
+    pos = np.concatenate([parent_pos, branch, miss])
+    par = np.r_[-1, np.arange(10), 6, 11 + np.arange(6), 6, 18 + np.arange(6)]
+    spread = np.r_[np.full(11, 0.01), np.full(14, 0.003)]
+    sk = M.Skeleton(pos=pos, parent=par.astype(np.int64), count=np.full(len(pos), 10, np.int64),
+                    members=np.zeros(0, np.int64), member_node=np.zeros(0, np.int64), spread=spread)
+    out = M.continue_branches(sk, 0.01)
+    first = int(np.flatnonzero(np.all(np.isclose(out.pos, branch[0]), axis=1))[0])
+    assert np.allclose(out.pos[out.parent[first]], [0, 0, 0.03])
+    other = int(np.flatnonzero(np.all(np.isclose(out.pos, miss[0]), axis=1))[0])
+    assert np.allclose(out.pos[out.parent[other]], [0, 0, 0.06])
+    cont = int(np.flatnonzero(np.all(np.isclose(out.pos, [0, 0, 0.07]), axis=1))[0])
+    assert np.allclose(out.pos[out.parent[cont]], [0, 0, 0.06])
