@@ -668,9 +668,9 @@ def _attach_outliers(pts, labels, d_root, inlier, reach, p: SegmentParams, k: in
     if len(ok) < k + 1:
         return
     tree = cKDTree(pts[ok])
-    med = float(np.median(tree.query(pts[ok[:: max(1, len(ok) // 20000)]], k=k + 1)[0][:, -1]))
+    med = float(np.median(tree.query(pts[ok[:: max(1, len(ok) // 20000)]], k=k + 1, workers=-1)[0][:, -1]))
     out = np.flatnonzero(~inlier)
-    d, j = tree.query(pts[out], k=1, distance_upper_bound=2 * p.outlier_factor * med)
+    d, j = tree.query(pts[out], k=1, distance_upper_bound=2 * p.outlier_factor * med, workers=-1)
     near = np.isfinite(d)
     labels[out[near]] = labels[ok[j[near]]]
     d_root[out[near]] = d_root[ok[j[near]]] + d[near]

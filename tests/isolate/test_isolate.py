@@ -286,3 +286,23 @@ def test_thin_stem_kept_with_and_without_the_scene(name, seed):
     assert stem.sum() > 300
     assert kept_capture[stem].all() and kept_alone[stem].all()
     assert (kept_capture[plant] != kept_alone[plant]).sum() <= 0.0005 * plant.sum()
+
+
+def test_grid_component_and_dilation_equal_ndimage():
+    """The ground test's 8-connected largest patch and its dilation (on scipy's sparse graph
+    components, to keep scipy.ndimage out of the start-up) equal scipy.ndimage's label + argmax
+    and binary_dilation, on random grids of every density, thin strips, ties and empty grids."""
+    from scipy import ndimage
+
+    from leaffit_usd.isolate.scene import dilate_8, largest_component_8
+
+    rng = np.random.default_rng(3)
+    eight = np.ones((3, 3), bool)
+    grids = [np.zeros((4, 5), bool), np.eye(6, dtype=bool)[::-1],  # an anti-diagonal: one patch
+             np.array([[1, 0, 1, 0, 1]], bool)]  # three equal patches: the first wins
+    grids += [rng.random(tuple(rng.integers(1, 40, 2))) < rng.uniform(0.05, 0.7) for _ in range(200)]
+    for g in grids:
+        lab, n = ndimage.label(g, structure=eight)
+        ref = lab == np.argmax(np.bincount(lab.ravel())[1:]) + 1 if n else np.zeros(g.shape, bool)
+        np.testing.assert_array_equal(largest_component_8(g), ref)
+        np.testing.assert_array_equal(dilate_8(g), ndimage.binary_dilation(g, eight))

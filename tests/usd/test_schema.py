@@ -1,5 +1,6 @@
 """The codeless LeafFitMLSDeformerAPI schema is registered on import and usable."""
 import json
+import os
 import subprocess
 import sys
 
@@ -43,9 +44,28 @@ def test_registration_after_registry_use_is_what_import_prevents():
         "import leaffit_usd.usd.schema as S\n"
         "print(S.is_known())\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    # a clean environment: this process imported leaffit_usd, which named the plug-in in
+    # PXR_PLUGINPATH_NAME, and a child would inherit it
+    env = {k: v for k, v in os.environ.items() if k != "PXR_PLUGINPATH_NAME"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
     # documents the USD pitfall (why leaffit_usd registers at import time)
     assert out.stdout.strip() == "False"
     code_ok = "import leaffit_usd\nimport leaffit_usd.usd.schema as S\nprint(S.is_known())\n"
-    out = subprocess.run([sys.executable, "-c", code_ok], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-c", code_ok], capture_output=True, text=True, check=True, env=env)
+    assert out.stdout.strip() == "True"
+
+
+def test_import_names_the_plugin_without_loading_usd():
+    """Without pxr loaded, ``import leaffit_usd`` does not import it (start-up of commands that
+    never touch USD) and USD still finds the schema when it starts later; with pxr loaded first
+    (its registry not yet used), the import registers through USD's API."""
+    env = {k: v for k, v in os.environ.items() if k != "PXR_PLUGINPATH_NAME"}
+    code = ("import sys, leaffit_usd\n"
+            "print('pxr' in sys.modules)\n"
+            "import leaffit_usd.usd.schema as S\n"
+            "print(S.is_known())\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+    assert out.stdout.split() == ["False", "True"]
+    code = "import pxr.Plug\nimport leaffit_usd, leaffit_usd.usd.schema as S\nprint(S.is_known())\n"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
     assert out.stdout.strip() == "True"
