@@ -329,6 +329,21 @@ def _mesh_elements(x: np.ndarray, nrm: np.ndarray | None):
     return tris, edges
 
 
+def unique_rows(a: np.ndarray, m: int) -> np.ndarray:
+    """The distinct rows of ``a`` ((K, c) int, entries in [0, m), m**c < 2**63) in lexicographic
+    order: ``np.unique(a, axis=0)``, on one int64 code per row (a 1-D unique is ~5x faster than
+    the row-wise one, which sorts a structured view)."""
+    a = np.asarray(a, np.int64)
+    code = np.zeros(len(a), np.int64)
+    for j in range(a.shape[1]):
+        code = code * m + a[:, j]
+    u = np.unique(code)
+    out = np.empty((len(u), a.shape[1]), np.int64)
+    for j in range(a.shape[1] - 1, -1, -1):
+        u, out[:, j] = np.divmod(u, m)
+    return out
+
+
 def _local_triangles(x: np.ndarray) -> np.ndarray:
     """(T, 3) int64 sorted, deduplicated triangles of geometry-central's local Delaunay
     triangulation of ``x`` (M, 3); none for fewer than 4 points or a degenerate cloud."""
@@ -339,7 +354,7 @@ def _local_triangles(x: np.ndarray) -> np.ndarray:
 
             loc = pp3d.PointCloudLocalTriangulation(x).get_local_triangulation().reshape(-1, 3)
             loc = loc[(loc >= 0).all(1)]
-            tris = np.unique(np.sort(loc, 1), axis=0).astype(np.int64)
+            tris = unique_rows(np.sort(loc, 1).astype(np.int64), len(x))
             tris = tris[(tris[:, 0] != tris[:, 1]) & (tris[:, 1] != tris[:, 2])]
         except Exception as exc:  # noqa: BLE001 - degenerate clouds: edges only
             log.debug("local triangulation failed (%s); using kNN edges only", exc)
@@ -389,11 +404,11 @@ def _thin_region_edges(x, tris, nb, spacing, nrm):
     m = len(x)
     cover = np.bincount(tris.ravel(), minlength=m) if len(tris) else np.zeros(m, np.int64)
     e = np.stack([np.repeat(np.arange(m), nb.shape[1]), nb.ravel()], 1)
-    e = np.unique(np.sort(e, 1), axis=0)
+    e = unique_rows(np.sort(e, 1), m)
     e = e[e[:, 0] != e[:, 1]]
     if len(tris):
         te = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [0, 2]]])
-        te = np.unique(np.sort(te, 1), axis=0)
+        te = unique_rows(np.sort(te, 1), m)
         code = lambda a: a[:, 0] * m + a[:, 1]  # noqa: E731
         e = e[~np.isin(code(e), code(te))]
     poor = cover < 3

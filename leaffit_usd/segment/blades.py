@@ -208,9 +208,9 @@ def tube_mask(g: SurfaceGraph, params) -> np.ndarray:
     tube = _tensor_ratio_within(g.points, g.normals, g.points, params.stalk_radius) > params.stalk_ratio
     for factor, ratio in TUBE_WIDE:
         coarse = voxel_subsample(g.points, max(64, g.size // (factor * factor)))
-        wide = _tensor_ratio_within(g.points[coarse], g.normals[coarse], g.points,
-                                    factor * params.stalk_radius) > ratio
-        tube |= wide
+        todo = np.flatnonzero(~tube)  # a point already found a tube needs no wider test
+        tube[todo] = _tensor_ratio_within(g.points[coarse], g.normals[coarse], g.points[todo],
+                                          factor * params.stalk_radius) > ratio
     return tube
 
 

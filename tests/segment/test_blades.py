@@ -45,6 +45,30 @@ def test_tube_test_tells_a_stem_from_a_blade():
     assert normal_tensor_ratio(sn) > 0.9 and normal_tensor_ratio(bn) < 0.05
 
 
+def test_wide_tube_tests_run_only_where_the_narrow_one_said_no():
+    """tube_mask skips the wider tests at points already found tubes: the mask equals the OR of
+    all three tests computed on every point (a thick stem, which only the wide tests catch, a
+    thin stem and a blade)."""
+    from leaffit_usd.segment.blades import TUBE_WIDE, _tensor_ratio_within
+    from leaffit_usd.geometry.heat import voxel_subsample
+
+    rng = np.random.default_rng(5)
+    thin, tn = _cylinder([0, 0, 0], [0, 0, 1.0], 0.006, 5000, rng)
+    thick, kn = _cylinder([0.5, 0, 0], [0, 0, 1.0], 0.05, 8000, rng)
+    blade, bn = _blade(np.array([0.3, 0, 0.5]), [1.0, 0, 0], 0.3, 0.15, 12000, rng)
+    pts, nrm = np.concatenate([thin, thick, blade]), np.concatenate([tn, kn, bn])
+    p = SegmentParams()
+    g = build_surface_graph(pts, nrm, np.ones(len(pts), bool), p)
+    every = _tensor_ratio_within(g.points, g.normals, g.points, p.stalk_radius) > p.stalk_ratio
+    narrow = every.copy()
+    for factor, ratio in TUBE_WIDE:
+        coarse = voxel_subsample(g.points, max(64, g.size // (factor * factor)))
+        every |= _tensor_ratio_within(g.points[coarse], g.normals[coarse], g.points,
+                                      factor * p.stalk_radius) > ratio
+    assert (every & ~narrow).sum() > 20  # the wide tests find tube points the narrow one misses
+    np.testing.assert_array_equal(tube_mask(g, p), every)
+
+
 def test_trifoliate_leaflets_on_one_attachment_are_three_leaves():
     """Three leaflets meeting at the end of one petiole (a trifoliate leaf): one blade component
     with one attachment; the merge tree cuts them apart at their bases. Without the palm rule
