@@ -18,6 +18,20 @@ spurious one (a further contact of the same true leaf):
 A cue separates the cases when the entries' and the spurious contacts' ranges do not overlap;
 the summary prints both ranges per cue.
 
+Non-local cues, per pair of touching pieces of one multi-contact blade (the pieces the contacts
+own after the split by graph distance), labelled "one leaf" when both pieces' majority
+ground-truth leaf is the same and "two leaves" otherwise:
+
+* ``shape_gain``: how much more leaf-like the union is than the worse of the two pieces, against
+  the plant's own unsplit leaves: ``|log(aspect / median aspect)| + |log(size / median size)|``
+  of the worse piece minus that of the union (aspect = sqrt of the second over the first
+  principal variance; size in graph points). Positive: the union looks more like the plant's
+  leaves than the pieces do (one leaf cut apart).
+* ``solidity``: the union's solidity over the smaller of the pieces' (area of the filled
+  occupancy grid in the best-fit plane over its convex hull's): two leaves meeting at a narrow
+  contact have a waist.
+* ``flatness``: the union's RMS distance from its best-fit plane over the larger of the pieces'.
+
     .venv/bin/python benchmarks/contact_cues.py [--suite] [--external heliosdev8:1 hard4:1 ...]
         [--gaussians N] [--count N]
 
@@ -42,6 +56,8 @@ from scipy.spatial import cKDTree  # noqa: E402
 
 import leaffit_usd.segment.blades as blades  # noqa: E402
 from leaffit_usd.geometry.plane import plane_basis  # noqa: E402
+from scipy import ndimage  # noqa: E402
+from scipy.spatial import ConvexHull  # noqa: E402
 from leaffit_usd.segment.auto import SegmentParams, segment_plant, working_normals  # noqa: E402
 from leaffit_usd.splats.frame import make_frame  # noqa: E402
 
@@ -79,15 +95,80 @@ def contact_cues(g, sheet, stem, d_root, members, groups, link, params, reach, c
     return out
 
 
-def observe(name, cloud, gt_labels, frame_choice, args, rows):
+def _plane_xy(p):
+    """(K, 2) coordinates of (K, 3) points in their best-fit plane, and the RMS off it."""
+    c = p - p.mean(0)
+    _, sv, vt = np.linalg.svd(c, full_matrices=False)
+    return c @ vt[:2].T, float(sv[2] / np.sqrt(len(p)))
+
+
+def _aspect(p):
+    sv = np.linalg.svd(p - p.mean(0), compute_uv=False)
+    return float(sv[1] / max(sv[0], 1e-12))
+
+
+def _solidity(xy, cell):
+    lo = xy.min(0) - 2 * cell
+    ij = np.floor((xy - lo) / cell).astype(int)
+    occ = np.zeros(tuple(ij.max(0) + 3), bool)
+    occ[ij[:, 0], ij[:, 1]] = True
+    occ = ndimage.binary_fill_holes(ndimage.binary_closing(occ, np.ones((3, 3), bool)))
+    return float(occ.sum() * cell * cell / max(ConvexHull(xy).volume, 1e-12))
+
+
+def pair_cues(g, gb, blade_pieces, gl_domain, exemplar):
+    """Rows of the non-local cues for every touching pair of pieces (see the module docstring).
+    blade_pieces : list of (members, owner) per multi-contact blade; gl_domain : (M,) ground-truth
+    leaf per graph point; exemplar : (median aspect, median size) of the unsplit leaves."""
+    aspect0, size0 = exemplar
+    cell = 1.5 * float(np.median(g.spacing))
+
+    def unlike(idx):
+        return abs(np.log(_aspect(g.points[idx]) / aspect0)) + abs(np.log(len(idx) / size0))
+
+    out = []
+    for members, owner in blade_pieces:
+        sub = gb[members][:, members].tocoo()
+        k = int(owner.max()) + 1
+        touch = np.zeros((k, k), int)
+        np.add.at(touch, (owner[sub.row], owner[sub.col]), 1)
+        for i in range(k):
+            for j in range(i + 1, k):
+                a, b = members[owner == i], members[owner == j]
+                if touch[i, j] == 0 or min(len(a), len(b)) < 20:
+                    continue
+                u = np.concatenate([a, b])
+                (xa, fa), (xb, fb), (xu, fu) = (_plane_xy(g.points[x]) for x in (a, b, u))
+                same = np.bincount(np.maximum(gl_domain[a], 0)).argmax() == \
+                    np.bincount(np.maximum(gl_domain[b], 0)).argmax()
+                out.append(dict(same=bool(same), n=(len(a), len(b)),
+                                shape_gain=max(unlike(a), unlike(b)) - unlike(u),
+                                solidity=_solidity(xu, cell) / min(_solidity(xa, cell), _solidity(xb, cell)),
+                                flatness=fu / max(fa, fb, 1e-12)))
+    return out
+
+
+def observe(name, cloud, gt_labels, frame_choice, args, rows, pairs=None):
     """Segment one plant, appending one row per contact of every multi-contact blade."""
     seen = {}
     find_leaves, attachment_groups = blades.find_leaves, blades._attachment_groups
     params = SegmentParams()
 
     def wrapped_find(g, sheet, stem, d_root, p):
-        seen.update(g=g, sheet=sheet, stem=stem, d_root=d_root)
-        return find_leaves(g, sheet, stem, d_root, p)
+        seen.update(g=g, sheet=sheet, stem=stem, d_root=d_root, blades=[])
+        found = find_leaves(g, sheet, stem, d_root, p)
+        if pairs is not None and seen["blades"]:
+            unsplit = [np.flatnonzero(found.labels == i + 1) for i, sp in enumerate(found.was_split) if not sp]
+            if unsplit:
+                ex = (float(np.median([_aspect(g.points[x]) for x in unsplit])),
+                      float(np.median([len(x) for x in unsplit])))
+                gl = gt_labels[cloud.file_index[g.domain]]
+                for r in pair_cues(g, blades._restrict(sheet, ~stem), seen["blades"], gl, ex):
+                    pairs.append(dict(plant=name, **r))
+                    print(f"{name:24s} pair {r['n'][0]:5d}/{r['n'][1]:<5d} shape_gain {r['shape_gain']:6.2f}  "
+                          f"solidity {r['solidity']:5.2f}  flatness {r['flatness']:5.2f}  "
+                          f"{'one leaf' if r['same'] else 'two leaves'}", flush=True)
+        return found
 
     def wrapped_groups(g, members, attached, link):
         groups = attachment_groups(g, members, attached, link)
@@ -97,6 +178,9 @@ def observe(name, cloud, gt_labels, frame_choice, args, rows):
             true_leaf = [int(np.bincount(np.maximum(gt_labels[cloud.file_index[g.domain[grp]]], 0)).argmax())
                          for grp in groups]
             depth = [float(np.median(seen["d_root"][grp])) for grp in groups]
+            gb = blades._restrict(seen["sheet"], ~seen["stem"])
+            dist = np.stack([dijkstra(gb, indices=grp, min_only=True)[members] for grp in groups])
+            seen["blades"].append((members, np.argmin(dist, 0)))
             for k, (cont, cover, inplane, n) in enumerate(cues):
                 same = [j for j in range(len(groups)) if true_leaf[j] == true_leaf[k]]
                 entry = min(same, key=lambda j: depth[j]) == k
@@ -125,14 +209,14 @@ def main(argv=None) -> int:
     ap.add_argument("--reach", type=float, default=0.05, help="cont: stem reach (working units)")
     ap.add_argument("--cover-links", type=float, default=3.0, help="cover: radius in attachment links")
     args = ap.parse_args(argv)
-    rows = []
+    rows, pairs = [], []
     if args.suite:
         from samples.generate import benchmark_suite, make_plant
 
         for name, spec, seed in benchmark_suite():
             cloud, gt = make_plant(spec, seed)
             fc = make_frame(cloud, up=gt.up, root=None, root_index=int(gt.root_index))
-            observe(name, cloud, gt.labels, fc, args, rows)
+            observe(name, cloud, gt.labels, fc, args, rows, pairs)
     if args.external:
         import external_plants as ext
         from leaffit_usd.splats import load_cloud
@@ -147,7 +231,7 @@ def main(argv=None) -> int:
                     cloud = load_cloud(d / "point_cloud.ply")
                     gt = np.load(d / "gt.npz")
                     fc = make_frame(cloud, up=gt["up"], root=gt["root"])
-                    observe(f"{set_name}-{seed}/{d.name}", cloud, gt["labels"], fc, args, rows)
+                    observe(f"{set_name}-{seed}/{d.name}", cloud, gt["labels"], fc, args, rows, pairs)
     entries = [r for r in rows if r["entry"]]
     spurious = [r for r in rows if not r["entry"]]
     print(f"\n{len(rows)} contacts on multi-contact blades: {len(entries)} entries, {len(spurious)} spurious")
@@ -160,6 +244,14 @@ def main(argv=None) -> int:
             v = v[np.isfinite(v)]
             if len(v):
                 print(f"  {cue:14s} {label:9s} {v.min():6.3f} .. {v.max():6.3f}  (median {np.median(v):.3f})")
+    print(f"\n{len(pairs)} touching pairs of pieces: {sum(r['same'] for r in pairs)} of one leaf, "
+          f"{sum(not r['same'] for r in pairs)} of two leaves")
+    for cue in ("shape_gain", "solidity", "flatness"):
+        for label, same in (("one leaf", True), ("two leaves", False)):
+            v = np.array([r[cue] for r in pairs if r["same"] == same], float)
+            v = v[np.isfinite(v)]
+            if len(v):
+                print(f"  {cue:14s} {label:10s} {v.min():6.3f} .. {v.max():6.3f}  (median {np.median(v):.3f})")
     return 0
 
 
