@@ -26,6 +26,8 @@ class FitParams:
     refine : Gauss-Newton iterations after Adam (ours; 0 = the paper's optimisation only)
     plane_weight, landmark_weight : weights of the point-to-plane (depth) term and of the
         base/apex landmark term in the refinement; damping : its Levenberg-Marquardt damping
+    outline_weight : weight of the refinement's silhouette-outline Chamfer, relative to the
+        surface Chamfer's lam (ours; 0 = off; see ``fit.register._refine``)
     template : "auto" or a leaf label (int or digit string)
     optimize : False = initial correspondence only (the paper's "w/o optim." ablation)
     seed : torch/numpy seed (the method itself is deterministic)
@@ -55,6 +57,7 @@ class FitParams:
     plane_weight: float = 1.0
     landmark_weight: float = 0.05
     damping: float = 1e-3
+    outline_weight: float = 1.0
     template: str | int = "auto"
     optimize: bool = True
     seed: int = 0
@@ -83,7 +86,7 @@ class FitParams:
             if not (isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
                     and v > 0):
                 raise ParameterError(name, "a positive number" + (" or 'auto'" if name == "sigma" else ""), v)
-        for name in ("lam", "plane_weight", "landmark_weight", "damping"):
+        for name in ("lam", "plane_weight", "landmark_weight", "damping", "outline_weight"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
                 raise ParameterError(name, "a number >= 0", v)

@@ -151,7 +151,12 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
                         params)
         targets[init_ok] = opt
     if params.optimize and params.refine > 0 and init_ok:
-        targets[init_ok] = _refine(T, [leaves[j] for j in init_ok], p, targets[init_ok], params)
+        outlines = None
+        if params.outline_weight > 0:
+            outlines = [_silhouette_outline(lf, covs, opac, params.fg_alpha)
+                        for lf in [T] + [leaves[j] for j in init_ok]]
+        targets[init_ok] = _refine(T, [leaves[j] for j in init_ok], p, targets[init_ok], params,
+                                   outlines)
 
     bad = ~np.isfinite(targets).all(axis=(1, 2))
     for j in np.flatnonzero(bad):
@@ -534,8 +539,51 @@ def _optimize(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray, mean
     return q.detach().double().numpy()
 
 
+def _silhouette_outline(lf: _Leaf, covs: "_Covariances", opac: np.ndarray, thr: float,
+                        long_side: int = 256) -> np.ndarray:
+    """(n, 2) the leaf's splat silhouette outline in its plane: the centres of the boundary
+    pixels of the largest region (holes filled) where its kept Gaussians, rendered along the
+    local -Z, cover alpha > ``thr``; leaf local frame, template units (``/ lf.scale``). A
+    ``long_side`` px image over the leaf's xy extent grown by 10 %. (0, 2) for a leaf with
+    fewer than 3 Gaussians.
+
+    Why the silhouette and not the outermost centres: the Gaussians' centres stop inside the
+    leaf's edge by about a splat footprint, an absolute distance (the capture's), not a fraction
+    of the leaf; the template mesh's outline is grown out to the template's silhouette
+    (``mesh.outline_fit``), so mapping the template's silhouette onto each leaf's own puts every
+    leaf's outline where its splats end, at any size relative to the template."""
+    from scipy.ndimage import binary_erosion, binary_fill_holes, label
+
+    from leaffit_usd.splats.render import render_orthographic_np
+
+    if len(lf.local) < 3:
+        return np.zeros((0, 2))
+    R = lf.frame[:3, :3]
+    cov = np.einsum("ji,njk,kl->nil", R, covs[lf.gaussians], R) / lf.scale ** 2
+    pts = lf.local / lf.scale
+    lo, hi = pts[:, :2].min(0), pts[:, :2].max(0)
+    pad = 0.1 * float((hi - lo).max())
+    lo, hi = lo - pad, hi + pad
+    px = float((hi - lo).max()) / long_side
+    if not px > 0:
+        return np.zeros((0, 2))
+    W = max(int(np.ceil((hi[0] - lo[0]) / px)), 8)
+    H = max(int(np.ceil((hi[1] - lo[1]) / px)), 8)
+    bounds = (float(lo[0]), float(lo[0] + W * px), float(lo[1]), float(lo[1] + H * px))
+    r = render_orthographic_np(pts, cov, np.full((len(pts), 3), 0.5), opac[lf.gaussians], W, H,
+                               bounds)
+    fg = np.asarray(r.alpha) > thr
+    lab, n = label(fg)
+    if n == 0:
+        return np.zeros((0, 2))
+    region = binary_fill_holes(lab == 1 + int(np.argmax(np.bincount(lab.ravel())[1:])))
+    rim = region & ~binary_erosion(region, border_value=0)
+    rr, cc = np.nonzero(rim)
+    return np.stack([bounds[0] + (cc + 0.5) * px, bounds[3] - (rr + 0.5) * px], 1)
+
+
 def _refine(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray,
-            params: FitParams) -> np.ndarray:
+            params: FitParams, outlines: list | None = None) -> np.ndarray:
     """Gauss-Newton refinement of the target control points after Adam (ours, beyond the paper).
 
     Why: Adam at the paper's lr for 200 steps stops short of the optimum of the objective (the
@@ -557,6 +605,17 @@ def _refine(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray,
     re-pairs the neighbours (kd-trees) and solves the 3K x 3K normal equations with
     Levenberg-Marquardt damping ``damping * mean diagonal`` towards the current q. All in template
     units, the leaf's local frame. Returns (B, K, 3) float64.
+
+    With ``outlines`` (the template's then each leaf's silhouette outline, (n, 2) each:
+    :func:`_silhouette_outline`) the objective also has the outlines' Chamfer in the leaf plane,
+
+             + lam * outline_weight * [mean_o |(A_o q)_xy - y_o|^2 + mean_c |(A_c' q)_xy - y_c|^2]
+
+    o = the template's outline points (z of the nearest template point), c = the leaf's. Why:
+    the surface Chamfer is carried by the blade's interior, where every point has a partner
+    within half a spacing whatever the outline does; the smooth field then stops short of the
+    leaf's rim (overlap: the deformed template's centres reached 0.97-0.99 of the leaf's
+    radial extent) and does not follow a leaf whose outline differs from the template's.
     """
     X = T.local
     A = mls_weights(p, X, params.sigma, params.reg)                      # (M, K)
@@ -565,12 +624,22 @@ def _refine(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray,
     A_lm = mls_weights(p, np.stack([np.zeros(3), T.apex]), params.sigma, params.reg)   # (2, K)
     H_lm = params.landmark_weight * A_lm.T @ A_lm
     H_tt = A.T @ A / len(X)                  # the template's own term: fixed for every leaf
+    w_o = params.lam * params.outline_weight
+    use_o = outlines is not None and w_o > 0 and len(outlines[0]) >= 3 and len(X)
+    if use_o:
+        BT = np.asarray(outlines[0], np.float64)
+        zt = X[cKDTree(X[:, :2]).query(BT)[1], 2]
+        A_o = mls_weights(p, np.column_stack([BT, zt]), params.sigma, params.reg)   # (n, K)
+        H_oo = A_o.T @ A_o / len(BT)
+        E_xy = np.diag([1.0, 1.0, 0.0])
     for b, lf in enumerate(leaves):
         g_lm = params.landmark_weight * A_lm.T @ np.stack([np.zeros(3), lf.apex / lf.scale])
         Y = lf.local / lf.scale
         N = lf.normals
         tree = cKDTree(Y)
         q = out[b]
+        Yo = np.asarray(outlines[b + 1], np.float64) if use_o else np.zeros((0, 2))
+        tree_o = cKDTree(Yo) if len(Yo) >= 3 else None
         for _ in range(params.refine):
             Xd = A @ q
             ia = tree.query(Xd)[1]
@@ -582,6 +651,14 @@ def _refine(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray,
             r = (N[ia] * Y[ia]).sum(1)
             H = params.lam * np.kron(H_pt, np.eye(3)) + params.plane_weight * (J.T @ J) / len(X)
             g = params.lam * g_pt.reshape(-1) + params.plane_weight * (J.T @ r) / len(X)
+            if tree_o is not None:
+                Xo = A_o @ q[:, :2]
+                io = tree_o.query(Xo)[1]
+                Ac = A_o[cKDTree(Xo).query(Yo)[1]]
+                H_o = H_oo + Ac.T @ Ac / len(Yo)
+                g_o = A_o.T @ Yo[io] / len(Xo) + Ac.T @ Yo / len(Yo)          # (K, 2)
+                H = H + w_o * np.kron(H_o, E_xy)
+                g = g + w_o * np.column_stack([g_o, np.zeros(K)]).reshape(-1)
             mu = params.damping * float(np.trace(H)) / len(H)
             q = np.linalg.solve(H + mu * np.eye(len(H)), g + mu * q.reshape(-1)).reshape(K, 3)
         out[b] = q
