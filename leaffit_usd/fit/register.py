@@ -152,8 +152,9 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
         targets[init_ok] = opt
     if params.optimize and params.refine > 0 and init_ok:
         outlines = None
-        if params.outline_weight > 0:
+        if params.outline_weight > 0 and _seen_face_on(T):
             outlines = [_silhouette_outline(lf, covs, opac, params.fg_alpha)
+                        if _seen_face_on(lf) else np.zeros((0, 2))
                         for lf in [T] + [leaves[j] for j in init_ok]]
         targets[init_ok] = _refine(T, [leaves[j] for j in init_ok], p, targets[init_ok], params,
                                    outlines)
@@ -537,6 +538,25 @@ def _optimize(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray, mean
         if not torch.isfinite(q).all():
             break
     return q.detach().double().numpy()
+
+
+#: a leaf's silhouette in its fit frame's xy is its outline when its mean normal is within this
+#: angle of the frame's +Z (the mesh's sheet-view rule, ``mesh.view_frame``, uses the same 30)
+FACE_ON_MAX_DEG = 30.0
+
+
+def _seen_face_on(lf: _Leaf) -> bool:
+    """Whether the leaf's xy view (its fit frame, along -Z) sees the blade face-on: the mean of
+    its denoised normals (each turned to +Z) within ``FACE_ON_MAX_DEG`` of +Z. An arched strap
+    leaf (lucky bamboo, sorghum) has its PCA +Z along its width: seen edge-on, its silhouette
+    is the arch's side view, not its outline (the outline term made sorghum's OE 0.0106 ->
+    0.0161)."""
+    n = np.asarray(lf.normals, np.float64)
+    if len(n) < 3:
+        return False
+    m = (n * np.where(n[:, 2:3] < 0, -1.0, 1.0)).mean(0)
+    r = float(np.linalg.norm(m))
+    return r > 0 and m[2] / r >= np.cos(np.radians(FACE_ON_MAX_DEG))
 
 
 def _silhouette_outline(lf: _Leaf, covs: "_Covariances", opac: np.ndarray, thr: float,

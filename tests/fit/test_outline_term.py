@@ -84,3 +84,29 @@ def test_refinement_draws_the_template_outline_onto_the_leafs():
                  [oT, oY])
     q1 = _refine(T, [tgt], p, p[None].copy(), FitParams(sigma=sigma, refine=3))
     assert np.array_equal(q0, q1)
+
+
+def test_outline_weight_must_be_a_number_at_least_zero():
+    import pytest
+
+    from leaffit_usd.errors import ParameterError
+
+    FitParams(outline_weight=0.0).validate()
+    with pytest.raises(ParameterError):
+        FitParams(outline_weight=-1.0).validate()
+
+
+def test_outline_term_only_for_leaves_seen_face_on():
+    """An arched strap leaf whose fit frame sees it edge-on (normals across the frame's +Z) gets
+    no outline term: its xy silhouette is the arch's side view."""
+    from leaffit_usd.fit.register import _seen_face_on
+
+    rng = np.random.default_rng(2)
+    flat = _blade(0.2, 0.08, 500, rng)
+    tilted = _leaf(2, flat)
+    tilted.normals = np.tile([0.0, np.sin(np.radians(50)), np.cos(np.radians(50))], (500, 1))
+    curled = _leaf(3, flat)
+    t = np.radians(rng.uniform(-25, 25, 500))                       # a curl, +-25 degrees
+    curled.normals = np.c_[np.zeros(500), np.sin(t), np.cos(t) * rng.choice([-1, 1], 500)]
+    assert _seen_face_on(_leaf(1, flat)) and _seen_face_on(curled)
+    assert not _seen_face_on(tilted)
