@@ -66,6 +66,9 @@ LOD_LEVELS = ((8, 2.0), (5, 4.0))
 # four points are the fewest that give a direction beyond their centroid (the first pass, which
 # builds the tubes, still wants 8 and level sets)
 _SMALL_MIN = 4
+# a stream's node whose spread exceeds this multiple of the stream's median holds several tubes
+# (the ratio of ``_inside_other_tubes``: 1.5 radii)
+_MERGED_SPREAD = 1.5
 
 
 @dataclass
@@ -1251,6 +1254,25 @@ class _Tube:
     own: np.ndarray | None = None  # (M, 3) its own nodes' Gaussians (not the junction's)
 
 
+def _merged_nodes(spread: np.ndarray, is_branch: bool) -> np.ndarray:
+    """(k,) bool: the nodes of a stream (spreads (k,), in stream order) whose level-set piece
+    holds several tubes: a spread above ``_MERGED_SPREAD`` x the stream's median (a junction
+    where branches leave along the parent, petiole bases running alongside it for a while).
+    Their centroid lies between the tubes and pulls the axis off the parent (overlap: 0.02, two
+    radii, over a run of six junction nodes). A branch's first node (the junction, placed by
+    its parent's stream) and streams shorter than 5 nodes (no median to speak of) keep theirs;
+    at least two single-tube nodes must remain."""
+    out = np.zeros(len(spread), bool)
+    if len(spread) < 5 or not (spread > 0).any():
+        return out
+    out = spread > _MERGED_SPREAD * float(np.median(spread[spread > 0]))
+    if is_branch:
+        out[0] = False
+    if (~out).sum() < 2:
+        out[:] = False
+    return out
+
+
 def _tubes(sk: Skeleton, areas: np.ndarray, points: np.ndarray, params: StemParams,
            smoothed: dict | None = None) -> list[_Tube]:
     w = float(params.level_width)
@@ -1261,6 +1283,16 @@ def _tubes(sk: Skeleton, areas: np.ndarray, points: np.ndarray, params: StemPara
         pts = sk.pos[chain].copy()
         wt = np.sqrt(np.maximum(sk.count[chain], 1)).astype(np.float64)
         is_branch = si > 0
+        merged = _merged_nodes(sk.spread[chain], is_branch)
+        if merged.any():
+            # their centroids lie between the tubes they hold: the stream's axis goes through
+            # them as it does between its single-tube nodes on either side
+            arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(pts, axis=0), axis=1))]
+            good = np.flatnonzero(~merged)
+            inside = merged & (arc > arc[good[0]]) & (arc < arc[good[-1]])
+            for k in range(3):
+                pts[inside, k] = np.interp(arc[inside], arc[good], pts[good, k])
+            wt[merged] *= 0.01
         if is_branch:
             pts[0] = node_pos.get(int(chain[0]), pts[0])
             wt[0] = 1e3 * wt.max()

@@ -482,3 +482,26 @@ def test_continue_branches_moves_only_a_diverging_branch():
     assert np.allclose(out.pos[out.parent[other]], [0, 0, 0.06])
     cont = int(np.flatnonzero(np.all(np.isclose(out.pos, [0, 0, 0.07]), axis=1))[0])
     assert np.allclose(out.pos[out.parent[cont]], [0, 0, 0.06])
+
+
+def test_axis_ignores_nodes_that_hold_several_tubes(monkeypatch):
+    """A run of nodes whose level-set pieces hold the parent and branch bases running alongside
+    it (spread 2.4x the stream's, centroids pulled 0.01 sideways) does not pull the smoothed axis
+    off the parent's line; without the rule the axis follows them by more than half of that."""
+    z = np.arange(20) * 0.01
+    pos = np.stack([0 * z, 0 * z, z], 1)
+    spread = np.full(20, 0.005)
+    run = slice(8, 13)
+    pos[run, 0] = 0.01
+    spread[run] = 0.012
+    sk = M.Skeleton(pos=pos, parent=np.r_[-1, np.arange(19)].astype(np.int64),
+                    count=np.full(20, 20, np.int64), members=np.zeros(0, np.int64),
+                    member_node=np.zeros(0, np.int64), spread=spread)
+    assert M._merged_nodes(spread, False).tolist() == [False] * 8 + [True] * 5 + [False] * 7
+    tb = M._tubes(sk, np.full(20, 0.005 ** 2), np.zeros((0, 3)), StemParams())[0]
+    assert np.abs(tb.axis[:, 0]).max() < 0.001
+    # a stream of single-tube nodes is left alone
+    assert not M._merged_nodes(np.full(20, 0.005), False).any()
+    monkeypatch.setattr(M, "_merged_nodes", lambda s, b: np.zeros(len(s), bool))
+    tb0 = M._tubes(sk, np.full(20, 0.005 ** 2), np.zeros((0, 3)), StemParams())[0]
+    assert np.abs(tb0.axis[:, 0]).max() > 0.005
