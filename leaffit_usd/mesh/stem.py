@@ -1259,7 +1259,7 @@ def _merged_nodes(spread: np.ndarray, is_branch: bool) -> np.ndarray:
     holds several tubes: a spread above ``_MERGED_SPREAD`` x the stream's median (a junction
     where branches leave along the parent, petiole bases running alongside it for a while).
     Their centroid lies between the tubes and pulls the axis off the parent (overlap: 0.02, two
-    radii, over a run of six junction nodes). A branch's first node (the junction, placed by
+    radii, over a run of junction nodes). A branch's first node (the junction, placed by
     its parent's stream) and streams shorter than 5 nodes (no median to speak of) keep theirs;
     at least two single-tube nodes must remain."""
     out = np.zeros(len(spread), bool)
