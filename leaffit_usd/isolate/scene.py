@@ -289,9 +289,6 @@ def largest_component_8(grid: np.ndarray) -> np.ndarray:
     ``scipy.ndimage.label`` with a 3x3 structure and an argmax of the sizes would give. On
     scipy's sparse graph components, already loaded here: ``scipy.ndimage`` costs ~0.08 s of
     import, which a ``segment`` run of a few seconds otherwise pays for this one call."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
     out = np.zeros(grid.shape, bool)
     cells = np.flatnonzero(grid)  # row-major order
     if not len(cells):
@@ -307,10 +304,8 @@ def largest_component_8(grid: np.ndarray) -> np.ndarray:
         both = (a >= 0) & (b >= 0)
         rows.append(a[both])
         cols.append(b[both])
-    rows, cols = np.concatenate(rows), np.concatenate(cols)
-    _, lab = connected_components(coo_matrix((np.ones(len(rows)), (rows, cols)),
-                                             shape=(len(cells), len(cells))), directed=False)
-    out.ravel()[cells[lab == int(np.argmax(np.bincount(lab)))]] = True
+    rank = _components((np.concatenate(rows), np.concatenate(cols)), np.ones(len(cells), bool))
+    out.ravel()[cells[rank == 0]] = True
     return out
 
 
