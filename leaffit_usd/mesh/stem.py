@@ -13,7 +13,10 @@ Generation", extended).
    re-hung where its own direction meets the parent (:func:`continue_branches`). Once the
    tubes are swept, the Gaussians still far outside all of them go through the same chain
    building once more (groups too short for level sets, down to 4 Gaussians, as one node), and
-   the tubes are swept again (:func:`_cover_missed`). When the capture has too few stem
+   the tubes are swept again (:func:`_cover_missed`). A terminal tube that explains none of
+   the Gaussians (the other tubes hold them) and whose surface stands out of the data (a second
+   arc of another tube's surface made into a tube of its own) is dropped
+   (:func:`_redundant_tubes`). When the capture has too few stem
    Gaussians the segmentation's rootward tree is the skeleton instead (``skeleton="tree"``, the
    paper's).
 2. **Streams.** At every junction the child with the longest subtree continues its parent, so
@@ -1593,6 +1596,14 @@ def _hysteresis(ctx: _GraphContext, members: np.ndarray, weak: np.ndarray, stron
     return weak & hit[comp[loc]]
 
 
+def _cover_tau(tubes: list[_Tube], q: np.ndarray, w_thin: float) -> float:
+    """How far outside the swept tubes a stem Gaussian q (M, 3) may lie and still be on them:
+    three robust standard deviations of all the Gaussians' offsets, at least a quarter of the
+    thin tubes' level width."""
+    res = _tube_residual(tubes, q)
+    return max(3.0 * 1.4826 * float(np.median(np.abs(res))), 0.25 * float(w_thin))
+
+
 def _cover_missed(sk: Skeleton, tubes: list[_Tube], points: np.ndarray, params: StemParams) -> Skeleton:
     """The skeleton with chains added for the stem Gaussians the swept tubes still miss.
 
@@ -1628,6 +1639,89 @@ def _cover_missed(sk: Skeleton, tubes: list[_Tube], points: np.ndarray, params: 
     return _drop_subtrees(out, inside)
 
 
+def _surface_gaps(tubes: list[_Tube], tree, sides: int) -> list[np.ndarray]:
+    """Per tube, (V,) the distance of each vertex of its swept surface (``sides`` per ring, one
+    ring per fine axis sample) to the nearest stem Gaussian (``tree``: a cKDTree of them)."""
+    out = []
+    for tb in tubes:
+        v, _ = sweep(tb.axis, tb.radii, sides, False, False)
+        out.append(tree.query(v)[0])
+    return out
+
+
+def _redundant_tubes(tubes: list[_Tube], q: np.ndarray, tau: float, sides: int,
+                     share: float = 0.9, stand_out: float = 1.5) -> list[int]:
+    """Indices of the terminal branch tubes that explain no Gaussian and stand out of the data.
+
+    - **Explain nothing:** at least ``share`` of the tube's own Gaussians lie within ``tau``
+      outside (or inside) the other tubes still kept.
+    - **Stand out:** somewhere its surface is farther from every stem Gaussian (``q`` (M, 3))
+      than ``stand_out`` x the 99th percentile of that distance over the other tubes' surfaces
+      (the capture's own gaps between Gaussians).
+
+    Such a tube was built from a second arc of another tube's surface, swept around an axis that
+    lies on that surface: the level sets of a thick petiole leaving a thin branch split the
+    petiole's ring in two past the fork, and the far arc became a chain of its own (pothos: the
+    end of the branch past the fork got a 0.013 tube, as thick as the petiole, half of it in the
+    air 0.02 from any true surface). A tube made of a few Gaussians the other tubes also cover,
+    but whose surface lies on the data, stays: it may still be the only mesh over part of a true
+    tube. Tubes are judged one at a time against the tubes still kept (most explained, then
+    fewest Gaussians, first), so of two tubes that explain each other one stays."""
+    from scipy.spatial import cKDTree
+
+    has_kid = {tb.parent_tube for tb in tubes}
+    cand = [i for i, tb in enumerate(tubes)
+            if tb.parent_tube >= 0 and i not in has_kid and tb.own is not None and len(tb.own)]
+    if not cand or not len(q):
+        return []
+    gaps = _surface_gaps(tubes, cKDTree(q), sides)
+    cand = [i for i in cand if float(gaps[i].max()) > stand_out * float(
+        np.percentile(np.concatenate([g for j, g in enumerate(gaps) if j != i] or [np.zeros(1)]), 99))]
+    if not cand:
+        return []
+    lo = np.stack([tb.axis.min(0) - tb.radii.max() for tb in tubes])
+    hi = np.stack([tb.axis.max(0) + tb.radii.max() for tb in tubes])
+    res = {}  # candidate -> (own, tubes) residuals, inf where the tube is out of reach
+    for i in cand:
+        own = tubes[i].own
+        r = np.full((len(own), len(tubes)), np.inf)
+        near = ((lo <= own.max(0) + tau) & (hi >= own.min(0) - tau)).all(1)
+        near[i] = False
+        for j in np.flatnonzero(near):
+            r[:, j] = _tube_residual([tubes[j]], own)
+        res[i] = r
+    kept = np.ones(len(tubes), bool)
+    while True:
+        left = [i for i in cand if kept[i]]
+        if not left:
+            break
+        frac = {}
+        for i in left:
+            k = kept.copy()
+            k[i] = False
+            frac[i] = float(np.mean(res[i][:, k].min(1, initial=np.inf) <= tau))
+        best = min(left, key=lambda i: (-frac[i], len(tubes[i].own), i))
+        if frac[best] < share:
+            break
+        kept[best] = False
+    return [int(i) for i in np.flatnonzero(~kept)]
+
+
+def _drop_redundant(tubes: list[_Tube], q: np.ndarray, tau: float, sides: int) -> list[_Tube]:
+    """The tubes without those of :func:`_redundant_tubes` (nothing hangs from them), parents
+    renumbered; every other tube stays as it was swept."""
+    gone = set(_redundant_tubes(tubes, q, tau, sides))
+    if not gone:
+        return tubes
+    new = {}
+    for i in range(len(tubes)):
+        if i not in gone:
+            new[i] = len(new)
+    out = [tubes[i] for i in sorted(new)]
+    for tb in out:
+        tb.parent_tube = new.get(tb.parent_tube, -1)
+    return out
+
 def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
                colors=None) -> Stem:
     """The stem as smooth swept tubes (module docstring).
@@ -1651,10 +1745,13 @@ def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
         return _empty_stem()
     tubes, root_r, pet_r = _skeleton_tubes(sk, kind, seg, pts_all, fits, params)
     if kind == "gaussians" and tubes:
+        w_thin = float(sk.graph.w_thin) if sk.graph is not None else float(params.level_width)
         covered = _cover_missed(sk, tubes, pts_all, params)
         if covered is not sk:
             sk = covered
             tubes, root_r, pet_r = _skeleton_tubes(sk, kind, seg, pts_all, fits, params)
+        q = pts_all[sk.members]
+        tubes = _drop_redundant(tubes, q, _cover_tau(tubes, q, w_thin), int(params.sides))
     if not tubes:
         log.warning("stem: no tube could be swept; writing no stem")
         return _empty_stem()
