@@ -16,7 +16,7 @@ import pkgutil
 import re
 import sys
 
-from leaffit_usd import __version__
+from leaffit_usd import __version__, lazy_imports
 from leaffit_usd.errors import UserError
 
 log = logging.getLogger("leaffit_usd")
@@ -122,6 +122,7 @@ class _OneLine(logging.Formatter):
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    lazy_imports.defer()  # library modules no command uses load only if something asks for them
     parser = build_parser(argv)
     args = parser.parse_args(argv)
     if not getattr(args, "command", None):
