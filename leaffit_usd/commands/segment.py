@@ -83,6 +83,7 @@ def params_from_args(args):
 
 
 def run(args) -> int:
+    from leaffit_usd.geometry.sampling import grid_order
     from leaffit_usd.io_util import atomic_path
     from leaffit_usd.segment.auto import segment_plant, working_normals
     from leaffit_usd.isolate.stage import frame_from_isolation, isolate_stage
@@ -94,6 +95,9 @@ def run(args) -> int:
     params = params_from_args(args)
     t0 = time.perf_counter()
     cloud_in = load_cloud(args.input, prim=args.prim)
+    # grid order: the labels do not depend on the Gaussians' order, and every neighbour query
+    # below runs 2-3x faster on coherent memory (the output is written in file order)
+    cloud_in = cloud_in.subset(grid_order(cloud_in.means))
     t_read = time.perf_counter() - t0
     t1 = time.perf_counter()
     fo = _args.frame_options(args)

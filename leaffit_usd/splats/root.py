@@ -174,11 +174,11 @@ def resolve_root(cloud: GaussianCloud, point: np.ndarray | None = None, root_ind
             raise ParameterError("--root-index", "an integer", root_index) from None
         if i != root_index or not 0 <= i < cloud.file_count:
             raise ParameterError("--root-index", f"an index in 0..{cloud.file_count - 1}", root_index)
-        pos = np.searchsorted(cloud.file_index, i)
-        if pos >= len(cloud) or cloud.file_index[pos] != i:
+        hit = np.flatnonzero(cloud.file_index == i)  # the cloud need not be in file order
+        if not len(hit):
             raise ParameterError("--root-index", "a Gaussian that was kept at load "
                                  "(this one was dropped as invalid)", i)
-        return int(pos)
+        return int(hit[0])
     if point is None:
         if up is None:
             up = estimate_up(cloud.means, cloud.shortest_axes())

@@ -109,3 +109,29 @@ class _nullctx:
 
     def __exit__(self, *a):
         return False
+
+
+def test_output_does_not_depend_on_the_file_order(ply, tmp_path):
+    """``segment`` visits the Gaussians in grid order for speed; that is exact only because the
+    labels, apexes and distances do not depend on the order of the Gaussians in the file."""
+    from leaffit_usd.splats import load_cloud
+
+    path, _, root = ply
+    cloud = load_cloud(path, drop_bad=False)
+    perm = np.random.default_rng(11).permutation(cloud.file_count)
+    shuffled = cloud.subset(perm)
+    shuffled.file_index = np.arange(len(perm))  # a new file, in the shuffled order
+    write_ply(shuffled, tmp_path / "shuffled.ply")
+    inv = np.argsort(perm)
+    outs = []
+    for p, r in ((path, root), (tmp_path / "shuffled.ply", int(inv[root]))):
+        assert main(["segment", str(p), "-o", str(tmp_path / "o.npz"), "--up", "+y",
+                     "--root-index", str(r), "-q"]) == 0
+        outs.append(dict(np.load(tmp_path / "o.npz")))
+    a, b = outs
+    assert np.array_equal(a["labels"], b["labels"][inv])
+    assert np.array_equal(a["dist_root"], b["dist_root"][inv], equal_nan=True)
+    for k in ("apex_indices", "leaf_tip", "leaf_base", "tree_nodes"):
+        assert np.array_equal(a[k], perm[b[k]]), k
+    assert int(a["root_index"]) == int(perm[int(b["root_index"])])
+    assert np.array_equal(a["confidence"], b["confidence"])

@@ -57,3 +57,20 @@ def test_position_order_is_lexsorts_order_with_ties():
             p = np.round(p / step) * step
         p[rng.integers(0, n, n // 5)] = p[rng.integers(0, n, n // 5)]  # exact duplicates
         assert np.array_equal(position_order(p), np.lexsort(p.T[::-1])), (n, step)
+
+
+def test_grid_order_visits_cells_z_major_each_cell_contiguous():
+    from leaffit_usd.geometry.sampling import grid_order
+
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-1, 1, (5000, 3)) * [1.0, 0.5, 2.0]
+    o = grid_order(p, cells=8)
+    assert np.array_equal(np.sort(o), np.arange(len(p)))              # a permutation
+    size = (p.max(0) - p.min(0)).max() / 8
+    c = np.floor((p[o] - p.min(0)) / size).astype(int)
+    key = (c[:, 2] * 100 + c[:, 1]) * 100 + c[:, 0]
+    assert np.all(np.diff(key) >= 0)                                  # cells in z, y, x order
+    same = np.flatnonzero(np.diff(key) == 0)
+    assert np.all(o[same + 1] > o[same])                              # stable within a cell
+    assert len(grid_order(np.zeros((0, 3)))) == 0
+    assert np.array_equal(grid_order(np.zeros((4, 3))), np.arange(4))  # one point, any number
