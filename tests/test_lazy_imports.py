@@ -4,6 +4,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from leaffit_usd.cli import main
 from leaffit_usd.splats.cloud import GaussianCloud
@@ -35,10 +36,11 @@ def test_scipy_import_leaves_deferred_modules_unloaded_and_they_still_work():
 
 
 def test_without_defer_scipy_loads_them():
-    """The fact the module works around (if a SciPy stops loading them, defer is moot)."""
+    """The fact the module works around; a SciPy that stops loading them makes defer moot."""
     code = ("import sys, scipy.sparse\n"
             "print('numpy.f2py' in sys.modules and 'numpy.testing' in sys.modules)\n")
-    assert _child(code) == ["True"]
+    if _child(code) != ["True"]:
+        pytest.skip("this SciPy no longer imports numpy.f2py / numpy.testing: nothing to defer")
 
 
 def test_defer_skips_loaded_and_missing_modules():
