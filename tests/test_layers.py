@@ -9,7 +9,7 @@ PKG = Path(__file__).resolve().parents[1] / "leaffit_usd"
 
 # lowest first; a unit is a subpackage or a top-level module of leaffit_usd
 LAYERS = [
-    {"leaffit_usd", "errors", "io_util", "serialize", "image_io", "determinism"},
+    {"leaffit_usd", "errors", "io_util", "serialize", "image_io", "determinism", "lazy_imports"},
     {"splats", "geometry", "metrics"},
     {"isolate"},
     {"segment"},
