@@ -135,3 +135,27 @@ def test_output_does_not_depend_on_the_file_order(ply, tmp_path):
         assert np.array_equal(a[k], perm[b[k]]), k
     assert int(a["root_index"]) == int(perm[int(b["root_index"])])
     assert np.array_equal(a["confidence"], b["confidence"])
+
+
+def test_segment_runs_blas_on_one_thread_and_restores_it(monkeypatch):
+    """The command's linear algebra runs on one BLAS thread (faster on 2 cores, same numbers:
+    OpenBLAS splits a product over its outputs); the caller's setting is back afterwards."""
+    from threadpoolctl import threadpool_info
+
+    import leaffit_usd.commands.segment as cmd
+
+    def blas_threads():
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    class Seen(Exception):
+        pass
+
+    def spy(args):  # the command's first step: note the BLAS threads, then stop
+        raise Seen(blas_threads())
+
+    before = blas_threads()
+    monkeypatch.setattr(cmd, "params_from_args", spy)
+    with pytest.raises(Seen) as inside:
+        cmd.run(type("Args", (), {"output": "x.npz"})())
+    assert inside.value.args[0] and all(n == 1 for n in inside.value.args[0])
+    assert blas_threads() == before
