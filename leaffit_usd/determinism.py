@@ -67,3 +67,19 @@ def deterministic(fn):
             return fn(*args, **kwargs)
 
     return wrapper
+
+
+def one_blas_thread(fn):
+    """Decorator: call ``fn`` with numpy's BLAS on one thread (threadpoolctl; restored after),
+    for time, not bytes: on 2 cores OpenBLAS' second thread spins waiting for the first and takes
+    the core another worker needs (the ``segment`` command: many small products, its kd-tree
+    queries on both cores). No torch import."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        from threadpoolctl import threadpool_limits
+
+        with threadpool_limits(limits=1, user_api="blas"):
+            return fn(*args, **kwargs)
+
+    return wrapper

@@ -8,6 +8,7 @@ import time
 import numpy as np
 
 from leaffit_usd.commands import _args
+from leaffit_usd.determinism import one_blas_thread
 from leaffit_usd.errors import ParameterError
 
 NAME = "segment"
@@ -82,24 +83,9 @@ def params_from_args(args):
     return _args.segment_params(args, **({} if seed is None else {"seed": seed}))
 
 
-def _one_blas_thread(fn):
-    """Run ``fn`` with numpy's BLAS on one thread (restored after). Segmentation's linear algebra
-    is many small products (3x3 tensors, (N, 3) moments); a second OpenBLAS thread mostly spins
-    waiting for the first, which on 2 cores takes the core the kd-tree queries' second worker
-    needs (benchmarks/segment_time.py: the whole process ~5 % faster, ~20 % less CPU)."""
-    import functools
-
-    @functools.wraps(fn)
-    def wrapper(*args, **kwargs):
-        from threadpoolctl import threadpool_limits
-
-        with threadpool_limits(limits=1, user_api="blas"):
-            return fn(*args, **kwargs)
-
-    return wrapper
-
-
-@_one_blas_thread
+# one BLAS thread: segmentation's linear algebra is many small products (benchmarks/
+# segment_time.py: 2.64 -> 2.51 s with the up axis estimated, same labels)
+@one_blas_thread
 def run(args) -> int:
     from leaffit_usd.geometry.sampling import grid_order
     from leaffit_usd.io_util import atomic_path
@@ -114,7 +100,7 @@ def run(args) -> int:
     t0 = time.perf_counter()
     cloud_in = load_cloud(args.input, prim=args.prim)
     # grid order: the labels do not depend on the Gaussians' order, and the kd-tree queries over
-    # the cloud run 2-3x faster on coherent memory (the output is written in file order)
+    # the cloud run faster on coherent memory (the output is written in file order)
     cloud_in = cloud_in.subset(grid_order(cloud_in.means))
     t_read = time.perf_counter() - t0
     t1 = time.perf_counter()

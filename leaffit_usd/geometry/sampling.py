@@ -80,7 +80,7 @@ def grid_order(points: np.ndarray, cells: int = 64) -> np.ndarray:
     a cell in the given order: ``np.lexsort`` is stable).
 
     For memory locality, not for results: a kd-tree query of 100k neighbours in this order runs
-    2-3x faster than in a capture's own order (each query finds the nodes and points it needs
+    faster than in a capture's own order (each query finds the nodes and points it needs
     still in cache from its predecessor). The segmentation's results do not depend on the order
     of the Gaussians (ties are broken by position, :func:`position_order`).
     """
