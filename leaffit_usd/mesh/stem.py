@@ -72,6 +72,9 @@ _SMALL_MIN = 4
 # a stream's node whose spread exceeds this multiple of the stream's median holds several tubes
 # (the ratio of ``_inside_other_tubes``: 1.5 radii)
 _MERGED_SPREAD = 1.5
+# a node with fewer Gaussians of its own than this is not circle-fitted next to a junction
+# (:func:`recentre_nodes`): 3 points are the fewest that fix a circle
+_FEW_OWN = 3
 
 
 @dataclass
@@ -766,7 +769,12 @@ def recentre_nodes(sk: Skeleton, points: np.ndarray, rounds: int = 2,
     (Kasa, algebraic, unbiased on a partial arc) to its own and its neighbours' Gaussians,
     projected across the local axis direction (parent -> child). Junctions and blobs, where the
     Gaussians are no circle (median misfit above 25 % of the radius, a radius beyond 3x the
-    node's spread, a centre farther than 2x the spread), keep their centroid. ``only`` (n,) bool:
+    node's spread, a centre farther than 2x the spread), keep their centroid. So does a node
+    with fewer than ``_FEW_OWN`` Gaussians of its own next to a junction: the junction's
+    Gaussians are of several tubes, and with so few of its own nothing holds the circle to the
+    node's tube (pothos_sh3: a 2-Gaussian node of a thin branch leaving the vine was fitted to
+    the vine's junction and moved 0.012 off its branch, whose tube then ran 0.02 off the true
+    one, HD 0.26). ``only`` (n,) bool:
     move just those nodes, fitted to their own and their neighbours among them (None: all).
     """
     n = len(sk.pos)
@@ -791,7 +799,7 @@ def recentre_nodes(sk: Skeleton, points: np.ndarray, rounds: int = 2,
                 continue
             t = t / np.linalg.norm(t)
             Q = points[np.concatenate([own[k] for k in nb])]
-            if len(Q) < 8:
+            if len(Q) < 8 or (len(own[u]) < _FEW_OWN and any(len(kids[k]) > 1 for k in nb[1:])):
                 continue
             e1 = np.cross(t, [1.0, 0, 0] if abs(t[0]) < 0.9 else [0, 1.0, 0])
             e1 /= np.linalg.norm(e1)
