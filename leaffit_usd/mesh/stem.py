@@ -16,7 +16,8 @@ Generation", extended).
    the tubes are swept again (:func:`_cover_missed`). A terminal tube that explains none of
    the Gaussians (the other tubes hold them) and whose surface stands out of the data (a second
    arc of another tube's surface made into a tube of its own) is dropped
-   (:func:`_redundant_tubes`). When the capture has too few stem
+   (:func:`_redundant_tubes`); so is such a tail of a branch tube past its last child
+   (:func:`_trim_redundant_tails`). When the capture has too few stem
    Gaussians the segmentation's rootward tree is the skeleton instead (``skeleton="tree"``, the
    paper's).
 2. **Streams.** At every junction the child with the longest subtree continues its parent, so
@@ -1730,6 +1731,50 @@ def _drop_redundant(tubes: list[_Tube], q: np.ndarray, tau: float, sides: int) -
         tb.parent_tube = new.get(tb.parent_tube, -1)
     return out
 
+
+def _trim_redundant_tails(tubes: list[_Tube], q: np.ndarray, tau: float, sides: int,
+                          share: float = 0.9, stand_out: float = 1.5) -> list[_Tube]:
+    """The tubes with each branch tube's redundant tail cut off: the part past where its last
+    child leaves it, judged as :func:`_redundant_tubes` judges a terminal tube (at least
+    ``share`` of the tail's own Gaussians lie within ``tau`` of the other tubes, and its surface
+    somewhere stands farther from every stem Gaussian ``q`` (M, 3) than ``stand_out`` x the
+    99th percentile of that gap over the other tubes' surfaces). A chain that runs along a
+    thin branch's end and then onto a second arc of the thick petiole beside it is one stream
+    (the arc is its longer subtree), so the arc is no terminal tube of its own and the terminal
+    rule never sees it (pothos_sh3's upper fork: the arc's tube, 0.0105-0.0143 thick around an
+    axis on the petiole's surface, stood 0.02 from every true tube). The tail keeps its first
+    fine sample past the last child's start (the child still grows out of it) and a rounded tip."""
+    from scipy.spatial import cKDTree
+
+    parents = {tb.parent_tube for tb in tubes if tb.parent_tube >= 0}
+    cand = [i for i in sorted(parents) if tubes[i].parent_tube >= 0 and tubes[i].own is not None
+            and len(tubes[i].own)]
+    if not cand or not len(q):
+        return tubes
+    gaps = _surface_gaps(tubes, cKDTree(q), sides)
+    for i in cand:
+        tb = tubes[i]
+        last = max(float(_polyline_distance(c.attach[None], tb.axis)[1][0])
+                   for c in tubes if c.parent_tube == i)
+        k = int(np.ceil(last)) + 1  # first sample of the tail
+        if k >= len(tb.axis) - 2:
+            continue
+        ref = np.percentile(np.concatenate([g for j, g in enumerate(gaps) if j != i] or [np.zeros(1)]), 99)
+        if float(gaps[i].reshape(len(tb.axis), sides)[k:].max()) <= stand_out * float(ref):
+            continue
+        t_own = _polyline_distance(tb.own, tb.axis)[1]
+        tail = tb.own[t_own > k]
+        if len(tail) < _SMALL_MIN:
+            continue
+        head = _Tube(axis=tb.axis[:k + 1], radii=tb.radii[:k + 1], cap_start=False, parent_tube=-1,
+                     attach=tb.attach)
+        others = [tubes[j] for j in range(len(tubes)) if j != i] + [head]
+        if float(np.mean(_tube_residual(others, tail) <= tau)) < share:
+            continue
+        tb.axis, tb.radii, tb.own = tb.axis[:k + 1], tb.radii[:k + 1], tb.own[t_own <= k]
+    return tubes
+
+
 def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
                colors=None) -> Stem:
     """The stem as smooth swept tubes (module docstring).
@@ -1759,7 +1804,9 @@ def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
             sk = covered
             tubes, root_r, pet_r = _skeleton_tubes(sk, kind, seg, pts_all, fits, params)
         q = pts_all[sk.members]
-        tubes = _drop_redundant(tubes, q, _cover_tau(tubes, q, w_thin), int(params.sides))
+        tau = _cover_tau(tubes, q, w_thin)
+        tubes = _drop_redundant(tubes, q, tau, int(params.sides))
+        tubes = _trim_redundant_tails(tubes, q, tau, int(params.sides))
     if not tubes:
         log.warning("stem: no tube could be swept; writing no stem")
         return _empty_stem()

@@ -582,12 +582,31 @@ def test_sparse_branch_node_is_not_fitted_to_its_junction(monkeypatch):
     Gaussians per level-set piece. Its first node, circle-fitted with the vine junction's
     Gaussians, moved 0.012 off the branch; the branch's tube then ran 0.02 off the true one and
     the stem's surface stood 0.026 from every true tube (HD 0.26, x10). A node with fewer than 3
-    Gaussians of its own keeps its centroid next to a junction: the farthest point is 0.020."""
+    Gaussians of its own keeps its centroid next to a junction (the farthest point then lies at
+    the upper fork, :func:`test_redundant_tail_is_cut_on_pothos`)."""
+    monkeypatch.setattr(M, "_trim_redundant_tails", lambda tubes, *a, **k: tubes)
     st, true = _pothos_stem(isolate=True)
     monkeypatch.setattr(M, "_FEW_OWN", 0)
     old, _ = _pothos_stem(isolate=True)
     assert _worst_mesh_point(old, true) > 0.025
     assert _worst_mesh_point(st, true) < 0.021
+
+
+def test_redundant_tail_is_cut_on_pothos(monkeypatch):
+    """pothos_sh3 as ``convert`` keeps it, at the fork where a thick petiole (r 0.012) leaves a
+    thin branch (r 0.003): a chain runs along the branch's end and then onto a second arc of the
+    petiole's surface. The arc is the chain's longer subtree, so it is the same stream as the
+    branch's end, whose own tip hangs from it: no terminal tube the redundant-tube rule would
+    judge. Its tail past that tip is judged the same way (its Gaussians are the petiole's, its
+    surface stands 0.02 off the data) and cut: the stem's farthest point from the true tubes
+    goes from 0.020 (that tail) to under 0.016."""
+    st, true = _pothos_stem(isolate=True)
+    monkeypatch.setattr(M, "_trim_redundant_tails", lambda tubes, *a, **k: tubes)
+    old, _ = _pothos_stem(isolate=True)
+    assert st.info["tubes"] == old.info["tubes"]
+    assert _worst_mesh_point(old, true) > 0.019
+    assert _worst_mesh_point(st, true) < 0.016
+    assert len(st.points) < len(old.points)
 
 
 def test_redundant_tube_needs_both_no_gaussians_of_its_own_and_surface_off_the_data():
