@@ -111,8 +111,14 @@ def main(argv=None):
                          "the root given and the up axis estimated, as a new user would")
     ap.add_argument("--seeds", nargs="*", type=int, default=[1, 2, 3],
                     help="seeds of the external sets (1 2 3)")
+    ap.add_argument("--suite-seeds", type=int, default=1, metavar="N",
+                    help="run each suite plant at N seeds of the generator: its own seed s, then "
+                         "s+100, s+200, ... (1: the fixed suite; more: is a gap between two "
+                         "methods on the fixed suite larger than the seed-to-seed spread?)")
     ap.add_argument("--out", default=str(ROOT / "benchmarks/results/segmentation.json"))
     args = ap.parse_args(argv)
+    if args.suite_seeds < 1:
+        ap.error("--suite-seeds must be >= 1")
     from samples.generate import benchmark_suite
 
     suite = [s for s in benchmark_suite(args.gaussians) if not args.only or s[0] in args.only]
@@ -121,10 +127,14 @@ def main(argv=None):
 
     farthest_point_sampling(np.random.default_rng(0).random((3000, 3)), 100)
     rows = []
-    for name, spec, seed in suite:
+    suite_seed = {n: sd for n, _, sd in suite}
+    for name, spec, seed in [(n, sp, sd + 100 * k) for n, sp, sd in suite
+                             for k in range(args.suite_seeds)]:
         r = run_one(name, spec, seed, args.methods)
+        r["seed"] = seed
         rows.append(r)
-        print(f"{name:<20} {r['category']:<10} L={r['leaves']:<3}" + "  ".join(
+        print(f"{name:<20} {r['category']:<10} L={r['leaves']:<3}"
+              + (f" seed {seed:<4}" if args.suite_seeds > 1 else "") + "  ".join(
             f"{m}: Acc {r[m]['acc']:6.2f} mIoU {r[m]['miou']:6.2f} PQ {r[m]['pq']:6.2f} "
             f"({r[m]['n_pred'] - 1}/{r['leaves']} leaves) {r[m]['time']:.2f}s" for m in args.methods),
             flush=True)
@@ -138,9 +148,17 @@ def main(argv=None):
     for title, rs in groups.items():
         if not rs:
             continue
-        text, summ = table(rs, args.methods, f"== {title}: {', '.join(r['name'] for r in rs)}")
-        print(text + "\n")
-        result["groups"][title] = {"plants": [r["name"] for r in rs], **summ}
+        names = list(dict.fromkeys(r["name"] for r in rs))
+        seeds = f" ({args.suite_seeds} seeds each)" if args.suite_seeds > 1 else ""
+        text, summ = table(rs, args.methods, f"== {title}{seeds}: {', '.join(names)}")
+        print(text)
+        for k in range(args.suite_seeds if args.suite_seeds > 1 else 0):  # one line per seed set
+            at = [r for r in rs if (r["seed"] - suite_seed[r["name"]]) == 100 * k]
+            print(f"   seeds s+{100 * k:<4}" + "".join(
+                f"  {m}: " + " / ".join(f"{np.mean([r[m][x] for r in at]):.2f}" for x in ("acc", "miou", "pq"))
+                for m in args.methods))
+        print()
+        result["groups"][title] = {"plants": names, **summ}
     times = np.array([r["ours"]["time"] for r in rows]) if "ours" in args.methods else np.zeros(0)
     if len(times):
         cpu = np.array([r["ours"]["cpu_time"] for r in rows])
