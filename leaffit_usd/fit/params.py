@@ -92,6 +92,10 @@ class FitParams:
                 raise ParameterError(name, "a number >= 0", v)
         if self.max_scale_ratio < 1:
             raise ParameterError("max_scale_ratio", "a number >= 1", self.max_scale_ratio)
+        for name, lo in (("neighbors", 3), ("reference_points", 0)):
+            v = getattr(self.denoise, name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < lo:
+                raise ParameterError(f"denoise.{name}", f"an integer >= {lo}", v)
         t = self.template
         if not (t == "auto" or isinstance(t, (int, np.integer)) and not isinstance(t, bool)
                 or isinstance(t, str) and t.strip().isdigit()):

@@ -88,6 +88,37 @@ def test_denoise_small_and_capped():
     assert (~r.keep).sum() <= 100 and np.isfinite(r.points).all()
 
 
+def test_denoise_neighbourhood_keeps_its_share_of_a_denser_leaf():
+    # the same noisy leaf at 4x the density: a fixed k averages the noise over a 4x smaller
+    # patch; k scaled by n / reference_points keeps the patch (and denoises as well or better)
+    from leaffit_usd.fit.denoise import neighbor_count
+
+    prm = DenoiseParams(reference_points=2000)
+    assert neighbor_count(1500, prm) == 24 and neighbor_count(2000, prm) == 24
+    assert neighbor_count(8000, prm) == 96 and neighbor_count(10, prm) == 10
+    assert neighbor_count(8000, DenoiseParams(reference_points=0)) == 24
+    off = {}
+    for n in (2000, 8000):
+        rng = np.random.default_rng(6)
+        p, R = _plane_points(rng, n)
+        noisy = p + R[:, 2] * rng.normal(0, 0.002, (n, 1))
+        for name, prm_ in (("fixed", DenoiseParams(reference_points=0)), ("share", prm)):
+            res = denoise_leaf(noisy, prm_)
+            off[name, n] = np.abs((res.points - p[0]) @ R[:, 2]).mean()
+    assert off["share", 2000] == off["fixed", 2000]            # sparse leaf: unchanged
+    assert off["share", 8000] < 0.7 * off["fixed", 8000]
+    assert off["share", 8000] <= off["share", 2000]
+
+
+def test_denoise_params_are_validated():
+    from leaffit_usd.errors import ParameterError
+    from leaffit_usd.fit.params import FitParams
+
+    for bad in (dict(neighbors=2), dict(neighbors=2.5), dict(reference_points=-1)):
+        with pytest.raises(ParameterError):
+            FitParams(denoise=DenoiseParams(**bad)).validate()
+
+
 def test_metrics_known_answers():
     m = trimesh.creation.icosphere(3)
     zero = mesh_metrics(m.vertices, m.faces, m.vertices, m.faces, n=2000)
