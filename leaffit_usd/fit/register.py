@@ -13,7 +13,8 @@ Per plant, in the working frame (root at origin, +Z up, height 1):
    the one with the highest ``symmetry * fill * min(1, density / median density)``:
    *symmetry* = min/max of the blade area left and right of the midrib (a torn or half-occluded
    leaf is asymmetric), *fill* = occupied fraction of the convex hull of the points in the leaf
-   plane (holes, missing bites), *density* = Gaussians per unit area (how well it was observed).
+   plane (holes, missing bites), *density* = Gaussians per unit area (how well it was observed;
+   of all the leaf's Gaussians, not of its ``leaf_gaussians`` subset).
    Ties go to the size closest to the median, then the lowest label.
 4. **Control points**: farthest point sampling of K template points (``p``) and K points of each
    target leaf; the initial one-to-one correspondence ``q0`` minimises the summed squared distance
@@ -361,7 +362,12 @@ def _shape_scores(lf: _Leaf):
     left = float((occ & (Y > 0)).sum()) * cell_area
     right = float((occ & (Y < 0)).sum()) * cell_area
     sym = min(left, right) / max(left, right, 1e-300)
-    return sym, fill, len(xy) / area
+    # density of the whole leaf, not of its subset: with every leaf capped at leaf_gaussians
+    # (a dense capture), the subset's count / area only says how small the leaf is
+    n = len(xy)
+    if lf.all_gaussians is not None and lf.sampled is not None and len(lf.sampled):
+        n *= len(lf.all_gaussians) / len(lf.sampled)
+    return sym, fill, n / area
 
 
 def _choose_template(leaves: list[_Leaf], params: FitParams) -> int:
