@@ -127,11 +127,10 @@ def main(argv=None):
 
     farthest_point_sampling(np.random.default_rng(0).random((3000, 3)), 100)
     rows = []
-    suite_seed = {n: sd for n, _, sd in suite}
-    for name, spec, seed in [(n, sp, sd + 100 * k) for n, sp, sd in suite
-                             for k in range(args.suite_seeds)]:
+    for name, spec, seed, k in [(n, sp, sd + 100 * k, k) for n, sp, sd in suite
+                                for k in range(args.suite_seeds)]:
         r = run_one(name, spec, seed, args.methods)
-        r["seed"] = seed
+        r["seed"], r["seed_set"] = seed, k
         rows.append(r)
         print(f"{name:<20} {r['category']:<10} L={r['leaves']:<3}"
               + (f" seed {seed:<4}" if args.suite_seeds > 1 else "") + "  ".join(
@@ -153,7 +152,7 @@ def main(argv=None):
         text, summ = table(rs, args.methods, f"== {title}{seeds}: {', '.join(names)}")
         print(text)
         for k in range(args.suite_seeds if args.suite_seeds > 1 else 0):  # one line per seed set
-            at = [r for r in rs if (r["seed"] - suite_seed[r["name"]]) == 100 * k]
+            at = [r for r in rs if r["seed_set"] == k]
             print(f"   seeds s+{100 * k:<4}" + "".join(
                 f"  {m}: " + " / ".join(f"{np.mean([r[m][x] for r in at]):.2f}" for x in ("acc", "miou", "pq"))
                 for m in args.methods))

@@ -118,7 +118,7 @@ def denoise_leaf(points: np.ndarray, params: DenoiseParams = DenoiseParams()) ->
     if n < 4:
         return DenoiseResult(p.copy(), np.ones(n, bool), np.zeros(n), _flat_normals(p))
     k_iso = int(min(params.neighbors, n))
-    k = max(neighbor_count(n, params), k_iso)
+    k = neighbor_count(n, params)  # >= k_iso
     tree = cKDTree(p)
     dist, idx = tree.query(p, k=k)
     dist = np.minimum(dist, params.sigma)  # neighbours beyond sigma get ~zero weight below

@@ -1658,6 +1658,15 @@ def _surface_gaps(tubes: list[_Tube], tree, sides: int) -> list[np.ndarray]:
     return out
 
 
+def _gap_reference(gaps: list, i: int) -> float:
+    """The capture's own gaps between stem Gaussians, seen from tube surfaces: the 99th
+    percentile of ``gaps`` (per tube, each surface sample's distance to the nearest stem Gaussian,
+    :func:`_surface_gaps`) over every tube but ``i``. A surface standing out of the data by more
+    than a multiple of this is off it (:func:`_redundant_tubes`, :func:`_trim_redundant_tails`)."""
+    return float(np.percentile(np.concatenate([g for j, g in enumerate(gaps) if j != i]
+                                              or [np.zeros(1)]), 99))
+
+
 def _redundant_tubes(tubes: list[_Tube], q: np.ndarray, tau: float, sides: int,
                      share: float = 0.9, stand_out: float = 1.5) -> list[int]:
     """Indices of the terminal branch tubes that explain no Gaussian and stand out of the data.
@@ -1684,8 +1693,7 @@ def _redundant_tubes(tubes: list[_Tube], q: np.ndarray, tau: float, sides: int,
     if not cand or not len(q):
         return []
     gaps = _surface_gaps(tubes, cKDTree(q), sides)
-    cand = [i for i in cand if float(gaps[i].max()) > stand_out * float(
-        np.percentile(np.concatenate([g for j, g in enumerate(gaps) if j != i] or [np.zeros(1)]), 99))]
+    cand = [i for i in cand if float(gaps[i].max()) > stand_out * _gap_reference(gaps, i)]
     if not cand:
         return []
     lo = np.stack([tb.axis.min(0) - tb.radii.max() for tb in tubes])
@@ -1759,8 +1767,7 @@ def _trim_redundant_tails(tubes: list[_Tube], q: np.ndarray, tau: float, sides: 
         k = int(np.ceil(last)) + 1  # first sample of the tail
         if k >= len(tb.axis) - 2:
             continue
-        ref = np.percentile(np.concatenate([g for j, g in enumerate(gaps) if j != i] or [np.zeros(1)]), 99)
-        if float(gaps[i].reshape(len(tb.axis), sides)[k:].max()) <= stand_out * float(ref):
+        if float(gaps[i].reshape(len(tb.axis), sides)[k:].max()) <= stand_out * _gap_reference(gaps, i):
             continue
         t_own = _polyline_distance(tb.own, tb.axis)[1]
         tail = tb.own[t_own > k]
