@@ -185,3 +185,28 @@ def test_a_patch_of_stem_surface_is_not_a_leaf():
     assert found.labels.max() == 1
     assert (found.labels[patch] == 0).all() and found.stem[patch].mean() > 0.8
     assert (found.labels[lab[g.domain] == 1] == 1).mean() > 0.95
+
+
+def test_a_dense_plant_is_segmented_on_a_subset_and_every_gaussian_labelled():
+    """Above ``max_gaussians`` the blades run on a position-order random subset; every other
+    Gaussian takes its nearest subset Gaussian's label, far floaters stay unassigned, the leaf
+    indices point into the whole cloud, and the file order does not change the result."""
+    pl = make_plant(n_leaves=5, n_points=24000, seed=4, floaters=0)
+    far = np.array([[3.0, 3.0, 3.0], [3.01, 3.0, 3.0]])  # two floaters far from the plant
+    pts = np.concatenate([pl.points, far])
+    nrm = np.concatenate([pl.normals, np.full((2, 3), np.nan)])
+    gt = np.concatenate([pl.labels, [-1, -1]])
+    prm = SegmentParams(max_gaussians=8000, domain_points=4000)
+    seg = segment_plant(pts, pl.root_index, prm, normals=nrm)
+    whole = segment_plant(pts, pl.root_index, SegmentParams(max_gaussians=0, domain_points=4000),
+                          normals=nrm)
+    assert seg.labels.shape == (len(pts),) and seg.dist_root.shape == (len(pts),)
+    assert seg.n_leaves == whole.n_leaves == 5
+    assert segmentation_scores(seg.labels[:-2], gt[:-2]).miou >= MIN_MIOU
+    assert np.all(seg.labels[-2:] == 0) and np.all(~np.isfinite(seg.dist_root[-2:]))
+    assert np.all(seg.labels[seg.leaf_tip] == np.arange(1, 6))
+    assert np.isfinite(seg.dist_root[:-2]).mean() > 0.99
+    perm = np.random.default_rng(0).permutation(len(pts))
+    root = int(np.flatnonzero(perm == pl.root_index)[0])
+    shuffled = segment_plant(pts[perm], root, prm, normals=nrm[perm])
+    assert np.array_equal(shuffled.labels, seg.labels[perm])
