@@ -67,12 +67,14 @@ class DenoiseResult(NamedTuple):
     """points : (M, 3) float64 projected centres (inputs' frame); keep : (N,) bool, inliers
     (``points`` are the projections of ``input[keep]``, in order); residual : (N,) float64 distance
     of each input point to its local plane; normals : (M, 3) float64 unit normal of the local
-    plane each point was last projected onto (sign arbitrary)."""
+    plane each point was last projected onto (sign arbitrary); residual_limit : the largest
+    residual the outlier test let through (working units; inf when nothing was tested)."""
 
     points: np.ndarray
     keep: np.ndarray
     residual: np.ndarray
     normals: np.ndarray
+    residual_limit: float = float("inf")
 
 
 def _robust_upper(x: np.ndarray, k: float) -> float:
@@ -127,8 +129,8 @@ def denoise_leaf(points: np.ndarray, params: DenoiseParams = DenoiseParams()) ->
     # isolation: the mean distance to the ``neighbors`` nearest (relative to the leaf's own
     # median below, so it needs no share of the area)
     iso = dist[:, 1:k_iso].mean(1)
-    bad = resid > params.sigma
-    bad |= resid > max(_robust_upper(resid, params.mad_k), 1e-12)
+    limit = min(params.sigma, max(_robust_upper(resid, params.mad_k), 1e-12))
+    bad = resid > limit
     bad |= iso > max(_robust_upper(iso, params.mad_k), 1e-12)
     max_bad = int(params.max_removed * n)
     if bad.sum() > max_bad:
@@ -152,7 +154,7 @@ def denoise_leaf(points: np.ndarray, params: DenoiseParams = DenoiseParams()) ->
     if not np.isfinite(q).all():           # never propagate NaN: fall back to the raw points
         log.warning("denoise: non-finite projection, keeping raw points")
         q = data.copy()
-    return DenoiseResult(q, keep, resid, normals)
+    return DenoiseResult(q, keep, resid, normals, float(limit))
 
 
 def _flat_normals(points: np.ndarray) -> np.ndarray:

@@ -289,3 +289,26 @@ def test_leaf_gaussian_cap_bounds_what_the_fit_reads(plant, monkeypatch):
     fit_leaves(plant.cloud, plant.seg, FitParams(steps=1, refine=0, leaf_gaussians=500, max_points=64))
     assert len(seen) == plant.seg.n_leaves and max(seen) == 500
     assert cov_rows and max(cov_rows) <= 64
+
+
+def test_gaussians_left_out_of_the_cap_keep_the_denoisers_plane_test():
+    """A leaf larger than the cap: the Gaussians left out of its subset join the template's set
+    only when they lie on the blade (within the denoiser's residual limit of their nearest kept
+    subset Gaussian's plane), so fuzz off the blade stays out at any density."""
+    from leaffit_usd.fit.denoise import DenoiseParams
+    from leaffit_usd.fit.register import _all_kept, _prepare_leaf
+    from leaffit_usd.segment.result import Segmentation
+
+    rng = np.random.default_rng(5)
+    r, a = 0.2 * np.sqrt(rng.random(20000)), rng.random(20000) * 2 * np.pi
+    blade = np.stack([r * np.cos(a), r * np.sin(a), rng.normal(0, 0.0005, 20000)], 1)
+    fuzz = blade[:200] + np.array([0.0, 0.0, 0.03])          # 1 % of the leaf, 3 cm above it
+    means = np.concatenate([blade, fuzz])
+    seg = Segmentation(labels=np.ones(len(means), np.int32), root_index=0,
+                       leaf_base=np.array([int(np.argmin(means[:, 0]))]),
+                       leaf_tip=np.array([int(np.argmax(means[:, 0]))]))
+    lf = _prepare_leaf(1, means, seg, DenoiseParams(), cap=2000, seed=0)
+    assert len(lf.sampled) == 2000 and np.isfinite(lf.residual_limit)
+    kept = _all_kept(lf, means)
+    assert np.isin(np.arange(20000, 20200), kept).sum() == 0         # no fuzz comes back
+    assert np.isin(np.arange(20000), kept).mean() > 0.97             # the blade does
