@@ -602,6 +602,11 @@ def _silhouette_outline(lf: _Leaf, covs: "_Covariances", opac: np.ndarray, thr: 
         return np.zeros((0, 2))
     R = lf.frame[:3, :3]
     cov = np.einsum("ji,njk,kl->nil", R, covs[lf.gaussians], R) / lf.scale ** 2
+    if lf.all_gaussians is not None and len(lf.sampled) < len(lf.all_gaussians):
+        # a capped leaf renders a random share of its Gaussians: each footprint grows by the
+        # inverse share (area), so the subset covers the blade as all of them do, and its
+        # silhouette does not shrink and fray with the capture's density
+        cov = cov * (len(lf.all_gaussians) / len(lf.sampled))
     pts = lf.local / lf.scale
     lo, hi = pts[:, :2].min(0), pts[:, :2].max(0)
     pad = 0.1 * float((hi - lo).max())

@@ -312,3 +312,34 @@ def test_gaussians_left_out_of_the_cap_keep_the_denoisers_plane_test():
     kept = _all_kept(lf, means)
     assert np.isin(np.arange(20000, 20200), kept).sum() == 0         # no fuzz comes back
     assert np.isin(np.arange(20000), kept).mean() > 0.97             # the blade does
+
+
+def test_a_capped_leafs_silhouette_outline_is_the_whole_leafs():
+    """The outline term's silhouette of a leaf capped to a tenth of its Gaussians spans the
+    same blade as all of them: the subset's footprints grow by the inverse share, so the
+    silhouette neither shrinks nor frays with the capture's density."""
+    from leaffit_usd.fit.denoise import DenoiseParams
+    from leaffit_usd.fit.register import _Covariances, _prepare_leaf, _silhouette_outline
+    from leaffit_usd.segment.result import Segmentation
+    from leaffit_usd.splats.cloud import GaussianCloud
+
+    rng = np.random.default_rng(2)
+    n = 20000
+    r, a = 0.2 * np.sqrt(rng.random(n)), rng.random(n) * 2 * np.pi
+    means = np.stack([1.5 * r * np.cos(a), r * np.sin(a), rng.normal(0, 0.0003, n)], 1)
+    spacing = np.sqrt(np.pi * 0.3 * 0.2 / n)
+    cloud = GaussianCloud.from_activated(means, np.tile([0.6 * spacing, 0.6 * spacing, 1e-5], (n, 1)),
+                                         np.tile([1.0, 0, 0, 0], (n, 1)), np.full(n, 0.9))
+    seg = Segmentation(labels=np.ones(n, np.int32), root_index=0,
+                       leaf_base=np.array([int(np.argmin(means[:, 0]))]),
+                       leaf_tip=np.array([int(np.argmax(means[:, 0]))]))
+    covs, opac = _Covariances(cloud), np.full(n, 0.9)
+
+    def span(cap):
+        lf = _prepare_leaf(1, cloud.means.astype(np.float64), seg, DenoiseParams(), cap=cap, seed=0)
+        o = _silhouette_outline(lf, covs, opac, 0.5) * lf.scale
+        return np.ptp(o, 0), len(o)
+
+    (full, n_full), (capped, n_capped) = span(0), span(n // 10)
+    assert np.allclose(capped, full, rtol=0.05)
+    assert n_capped < 1.5 * n_full   # one clean rim, not a frayed one
