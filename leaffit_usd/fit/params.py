@@ -24,6 +24,9 @@ class FitParams:
     sigma : MLS kernel width: "auto" = ``sigma_relative`` x the template leaf's size (RMS radius
         in its plane; ours, see the module doc), or a number in working units (paper: 0.1)
     refine : Gauss-Newton iterations after Adam (ours; 0 = the paper's optimisation only)
+    refine_points : the refinement pairs at most this many of the template's and of each leaf's
+        denoised Gaussians (a position-order random sample; 0 = all): its cost grows with
+        their number, and a 16,384-point sample of a denser leaf leaves the fit unchanged
     plane_weight, landmark_weight : weights of the point-to-plane (depth) term and of the
         base/apex landmark term in the refinement; damping : its Levenberg-Marquardt damping
     outline_weight : weight of the refinement's silhouette-outline Chamfer, relative to the
@@ -35,11 +38,13 @@ class FitParams:
     max_points : Gaussians per leaf used in the optimisation (farthest point sampling)
     leaf_gaussians : at most this many of a leaf's Gaussians enter denoising, the leaf frame,
         the fit and its error (a deterministic random subset; 0 = all). A dense capture's
-        leaves hold tens of thousands (1M Gaussians: 50-100k per leaf), and the optimisation
+        leaves hold tens of thousands (1M Gaussians: 35-165k per leaf), and the optimisation
         itself already uses ``max_points``; the cap keeps denoising and the error from growing
-        with the capture. 16384 leaves the 100k-Gaussian benchmark plants unchanged but for
-        the largest leaves. The template's texture bake still gets every Gaussian of the
-        template leaf near its denoised surface.
+        without bound. 65536 leaves every 100k-Gaussian benchmark plant whole; the denoiser
+        fits its planes at ``denoise.plane_points`` anchors, so the cap's cost grows with it,
+        not with its square. (16384 cost the 1M capsicum's accuracy: HD x10 0.0452 against
+        100k's 0.0407, ``benchmarks/scale.py``.) The template's texture bake and every leaf's
+        outline silhouette still get every Gaussian of the leaf near its denoised surface.
     max_scale_ratio : a leaf more than this many times larger (or smaller) than the template is
         treated as degenerate (likely a merged segment) and fitted rigidly
     fg_alpha : a depth-map pixel is foreground where its accumulated alpha exceeds this
@@ -54,6 +59,7 @@ class FitParams:
     sigma_relative: float = 0.7
     reg: float = DEFAULT_REG
     refine: int = 10
+    refine_points: int = 16384
     plane_weight: float = 1.0
     landmark_weight: float = 0.05
     damping: float = 1e-3
@@ -63,7 +69,7 @@ class FitParams:
     seed: int = 0
     image_size: int = 64
     max_points: int = 1024
-    leaf_gaussians: int = 16384
+    leaf_gaussians: int = 65536
     max_scale_ratio: float = 4.0
     fg_alpha: float = 0.5
     denoise: DenoiseParams = field(default_factory=DenoiseParams)
@@ -75,8 +81,7 @@ class FitParams:
 
     def validate(self) -> None:
         for name, lo in (("K", 1), ("steps", 0), ("image_size", 8), ("max_points", 16),
-                         ("leaf_gaussians", 0),
-                         ("refine", 0)):
+                         ("leaf_gaussians", 0), ("refine", 0), ("refine_points", 0)):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < lo:
                 raise ParameterError(name, f"an integer >= {lo}", v)
@@ -92,7 +97,7 @@ class FitParams:
                 raise ParameterError(name, "a number >= 0", v)
         if self.max_scale_ratio < 1:
             raise ParameterError("max_scale_ratio", "a number >= 1", self.max_scale_ratio)
-        for name, lo in (("neighbors", 3), ("reference_points", 0)):
+        for name, lo in (("neighbors", 3), ("reference_points", 0), ("plane_points", 0)):
             v = getattr(self.denoise, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < lo:
                 raise ParameterError(f"denoise.{name}", f"an integer >= {lo}", v)

@@ -74,7 +74,7 @@ from leaffit_usd.fit.mls import DEFAULT_SIGMA, mls_weights
 from leaffit_usd.fit.params import FitParams
 from leaffit_usd.fit.result import LeafFits
 from leaffit_usd.geometry.pca import leaf_frame, pca
-from leaffit_usd.geometry.sampling import farthest_point_sampling
+from leaffit_usd.geometry.sampling import farthest_point_sampling, position_order_sample
 from leaffit_usd.segment.result import Segmentation
 from leaffit_usd.splats.cloud import GaussianCloud
 from leaffit_usd.splats.render import render_orthographic
@@ -95,6 +95,11 @@ class _Leaf:
     all_gaussians: np.ndarray | None = None  # (A,) every Gaussian of the leaf (segmentation)
     sampled: np.ndarray | None = None        # (S,) those that entered denoising (<= leaf_gaussians)
     residual_limit: float = np.inf           # the denoiser's outlier residual limit, working units
+
+    @property
+    def capped(self) -> bool:
+        """Whether only a subset of the leaf's Gaussians entered denoising (``leaf_gaussians``)."""
+        return self.all_gaussians is not None and len(self.sampled) < len(self.all_gaussians)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -155,7 +160,7 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
     if params.optimize and params.refine > 0 and init_ok:
         outlines = None
         if params.outline_weight > 0 and _seen_face_on(T):
-            outlines = [_silhouette_outline(lf, covs, opac, params.fg_alpha)
+            outlines = [_silhouette_outline(lf, covs, opac, params.fg_alpha, means)
                         if _seen_face_on(lf) else np.zeros((0, 2))
                         for lf in [T] + [leaves[j] for j in init_ok]]
         targets[init_ok] = _refine(T, [leaves[j] for j in init_ok], p, targets[init_ok], params,
@@ -283,7 +288,7 @@ def _all_kept(lf: _Leaf, means: np.ndarray) -> np.ndarray:
     back: the 1M capsicum's template kept ~200 fuzz Gaussians (its 100k twin: none, all its
     leaves fit in the subset), and the template outline grew with the density (auto labels,
     outline error x10 0.0108 / 0.0123 / 0.0140 at 100k / 1M / 5M)."""
-    if lf.all_gaussians is None or len(lf.all_gaussians) == len(lf.sampled):
+    if not lf.capped:
         return lf.gaussians
     from scipy.spatial import cKDTree
 
@@ -582,12 +587,15 @@ def _seen_face_on(lf: _Leaf) -> bool:
 
 
 def _silhouette_outline(lf: _Leaf, covs: "_Covariances", opac: np.ndarray, thr: float,
-                        long_side: int = 256) -> np.ndarray:
+                        means: np.ndarray | None = None, long_side: int = 256) -> np.ndarray:
     """(n, 2) the leaf's splat silhouette outline in its plane: the centres of the boundary
     pixels of the largest region (holes filled) where its kept Gaussians, rendered along the
     local -Z, cover alpha > ``thr``; leaf local frame, template units (``/ lf.scale``). A
     ``long_side`` px image over the leaf's xy extent grown by 10 %. (0, 2) for a leaf with
-    fewer than 3 Gaussians.
+    fewer than 3 Gaussians. ``means`` : (N, 3) the cloud's centres, working frame; with them a
+    capped leaf (``leaf_gaussians``) renders every Gaussian the denoiser would keep
+    (:func:`_all_kept`: its subset at their denoised centres, the rest at their own), without
+    them its subset alone.
 
     Why the silhouette and not the outermost centres: the Gaussians' centres stop inside the
     leaf's edge by about a splat footprint, an absolute distance (the capture's), not a fraction
@@ -600,14 +608,15 @@ def _silhouette_outline(lf: _Leaf, covs: "_Covariances", opac: np.ndarray, thr: 
 
     if len(lf.local) < 3:
         return np.zeros((0, 2))
-    R = lf.frame[:3, :3]
-    cov = np.einsum("ji,njk,kl->nil", R, covs[lf.gaussians], R) / lf.scale ** 2
-    if lf.all_gaussians is not None and len(lf.sampled) < len(lf.all_gaussians):
-        # a capped leaf renders a random share of its Gaussians: each footprint grows by the
-        # inverse share (area), so the subset covers the blade as all of them do, and its
-        # silhouette does not shrink and fray with the capture's density
-        cov = cov * (len(lf.all_gaussians) / len(lf.sampled))
-    pts = lf.local / lf.scale
+    R, t = lf.frame[:3, :3], lf.frame[:3, 3]
+    g, pts = lf.gaussians, lf.local / lf.scale
+    if lf.capped and means is not None:
+        # a capped leaf: every Gaussian the denoiser would keep, not only its subset (those left
+        # out at their own centres), so the silhouette is the one all its Gaussians cover
+        extra = np.setdiff1d(_all_kept(lf, means), g, assume_unique=True)
+        g = np.concatenate([g, extra])
+        pts = np.vstack([pts, (means[extra] - t) @ R / lf.scale])
+    cov = np.einsum("ji,njk,kl->nil", R, covs[g], R) / lf.scale ** 2
     lo, hi = pts[:, :2].min(0), pts[:, :2].max(0)
     pad = 0.1 * float((hi - lo).max())
     lo, hi = lo - pad, hi + pad
@@ -617,8 +626,7 @@ def _silhouette_outline(lf: _Leaf, covs: "_Covariances", opac: np.ndarray, thr: 
     W = max(int(np.ceil((hi[0] - lo[0]) / px)), 8)
     H = max(int(np.ceil((hi[1] - lo[1]) / px)), 8)
     bounds = (float(lo[0]), float(lo[0] + W * px), float(lo[1]), float(lo[1] + H * px))
-    r = render_orthographic_np(pts, cov, np.full((len(pts), 3), 0.5), opac[lf.gaussians], W, H,
-                               bounds)
+    r = render_orthographic_np(pts, cov, np.full((len(pts), 3), 0.5), opac[g], W, H, bounds)
     fg = np.asarray(r.alpha) > thr
     lab, n = label(fg)
     if n == 0:
@@ -664,7 +672,7 @@ def _refine(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray,
     leaf's rim (overlap: the deformed template's centres reached 0.97-0.99 of the leaf's
     radial extent) and does not follow a leaf whose outline differs from the template's.
     """
-    X = T.local
+    X = T.local[_at_most(T.local, params.refine_points)]
     A = mls_weights(p, X, params.sigma, params.reg)                      # (M, K)
     K = len(p)
     out = np.array(q0, np.float64)
@@ -681,8 +689,9 @@ def _refine(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray,
         E_xy = np.diag([1.0, 1.0, 0.0])
     for b, lf in enumerate(leaves):
         g_lm = params.landmark_weight * A_lm.T @ np.stack([np.zeros(3), lf.apex / lf.scale])
-        Y = lf.local / lf.scale
-        N = lf.normals
+        sub = _at_most(lf.local, params.refine_points)
+        Y = lf.local[sub] / lf.scale
+        N = lf.normals[sub]
         tree = cKDTree(Y)
         q = out[b]
         Yo = np.asarray(outlines[b + 1], np.float64) if use_o else np.zeros((0, 2))
@@ -710,6 +719,14 @@ def _refine(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray,
             q = np.linalg.solve(H + mu * np.eye(len(H)), g + mu * q.reshape(-1)).reshape(K, 3)
         out[b] = q
     return out
+
+
+def _at_most(points: np.ndarray, n: int) -> np.ndarray:
+    """(min(N, n),) indices of ``points`` (N, 3): all, or a position-order random sample of n
+    (``geometry.sampling``; 0 = all)."""
+    if n <= 0:
+        return np.arange(len(points))
+    return position_order_sample(points, int(n), seed=0)
 
 
 class Adam:

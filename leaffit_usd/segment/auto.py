@@ -173,7 +173,9 @@ class SegmentParams:
         any density, and the voxel subsample keeps each isolated one, so their share of the graph
         grows with N: 100 of 25k graph points at 100k, 1,000 at 1M), and the same capsicum cut a
         leaf at 1M and merged two at 5M, while each of three random 120k subsets of either gives
-        99.8-99.9 mIoU, as at 100k (``benchmarks/scale.py``)
+        99.8-99.9 mIoU, as at 100k (scratch runs of ``benchmarks/seg_external.py``'s
+        ``run_plant`` with the GT root; ``benchmarks/scale.py`` prints the leaves found at 1M
+        and 5M)
     """
 
     n_samples: int = 8192
@@ -379,9 +381,7 @@ def _segment_subset(pts, root, normals, p: SegmentParams, tm: dict, t0: float) -
                         normals=None if normals is None else np.asarray(normals)[keep], timings=tm)
     t1 = time.perf_counter()
     placed = keep[np.isfinite(sub.dist_root)]
-    tree = cKDTree(pts[placed])
-    med = float(np.median(tree.query(pts[placed[:: max(1, len(placed) // 20000)]], k=9, workers=-1)[0][:, -1]))
-    d, j = tree.query(pts, k=1, distance_upper_bound=2 * p.outlier_factor * med, workers=-1)
+    d, j = _nearest_within_reach(pts[placed], pts, p)
     near = np.isfinite(d)
     full_labels = np.zeros(len(pts), np.int32)
     dist = np.full(len(pts), np.inf, np.float32)
@@ -712,13 +712,21 @@ def _attach_outliers(pts, labels, d_root, inlier, reach, p: SegmentParams, k: in
     ok = np.flatnonzero(inlier & reach)
     if len(ok) < k + 1:
         return
-    tree = cKDTree(pts[ok])
-    med = float(np.median(tree.query(pts[ok[:: max(1, len(ok) // 20000)]], k=k + 1, workers=-1)[0][:, -1]))
     out = np.flatnonzero(~inlier)
-    d, j = tree.query(pts[out], k=1, distance_upper_bound=2 * p.outlier_factor * med, workers=-1)
+    d, j = _nearest_within_reach(pts[ok], pts[out], p, k)
     near = np.isfinite(d)
     labels[out[near]] = labels[ok[j[near]]]
     d_root[out[near]] = d_root[ok[j[near]]] + d[near]
+
+
+def _nearest_within_reach(src: np.ndarray, query: np.ndarray, p: SegmentParams, k: int = 8):
+    """Each query point's nearest ``src`` point (both (n, 3), working frame) if it lies within
+    the floater-attach distance, 2 x ``outlier_factor`` x the median distance of src's points to
+    their k-th neighbour (measured on at most ~20k of them). Returns (d, j): (Q,) distances, inf
+    where none is within reach, and (Q,) indices into src (len(src) there)."""
+    tree = cKDTree(src)
+    med = float(np.median(tree.query(src[:: max(1, len(src) // 20000)], k=k + 1, workers=-1)[0][:, -1]))
+    return tree.query(query, k=1, distance_upper_bound=2 * p.outlier_factor * med, workers=-1)
 
 
 def _build_tree(solver: GeodesicSolver, dr_dom, apex_g, root, p: SegmentParams):

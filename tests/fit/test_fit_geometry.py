@@ -110,11 +110,50 @@ def test_denoise_neighbourhood_keeps_its_share_of_a_denser_leaf():
     assert off["share", 8000] <= off["share", 2000]
 
 
+def test_denoise_fits_its_planes_at_anchors_on_a_dense_leaf(monkeypatch):
+    # a curved noisy blade of 6000 with 30 floaters: local planes at 1500 anchors (every point
+    # projected onto its nearest anchor's plane) denoise about as well as a plane at every point,
+    # remove the same floaters, never fit more than 1500 planes, and do not depend on file order
+    import leaffit_usd.fit.denoise as dn
+
+    rng = np.random.default_rng(8)
+    n = 6000
+    xy = rng.uniform([-0.06, -0.03], [0.06, 0.03], (n, 2))
+    surf = lambda q: 4.0 * q[:, 0] ** 2 + 3.0 * q[:, 0] * q[:, 1]       # curved, 0.02 of sag
+    pts = np.c_[xy, surf(xy) + rng.normal(0, 0.0015, n)]
+    pts[:30, 2] += 0.04
+    rows = []
+    real = dn._local_planes
+    monkeypatch.setattr(dn, "_local_planes", lambda q, *a: rows.append(len(q)) or real(q, *a))
+    err = {}
+    for pp in (0, 1500):
+        rows.clear()
+        r = denoise_leaf(pts, DenoiseParams(reference_points=1500, plane_points=pp))
+        assert not r.keep[:30].any() and r.keep[30:].mean() > 0.97
+        err[pp] = np.abs(r.points[:, 2] - surf(r.points)).mean()
+        assert max(rows) == (len(pts) if pp == 0 else 1500)
+    raw = np.abs(pts[30:, 2] - surf(pts[30:])).mean()
+    assert err[1500] < 1.1 * err[0] and err[1500] < 0.3 * raw
+    perm = rng.permutation(n)
+    a, b = denoise_leaf(pts, DenoiseParams(reference_points=1500, plane_points=1500)), \
+        denoise_leaf(pts[perm], DenoiseParams(reference_points=1500, plane_points=1500))
+    inv = np.argsort(perm)
+    assert np.array_equal(a.keep, b.keep[inv])
+    pos = np.cumsum(b.keep) - 1                                   # row of each kept input
+    assert np.allclose(a.points, b.points[pos[inv][a.keep]], atol=1e-12)
+    # a leaf no larger than plane_points: a plane at every point, the same bytes as 0
+    small = pts[:1400]
+    for x, y in zip(denoise_leaf(small, DenoiseParams(plane_points=1500)),
+                    denoise_leaf(small, DenoiseParams(plane_points=0))):
+        assert np.array_equal(x, y)
+
+
 def test_denoise_params_are_validated():
     from leaffit_usd.errors import ParameterError
     from leaffit_usd.fit.params import FitParams
 
-    for bad in (dict(neighbors=2), dict(neighbors=2.5), dict(reference_points=-1)):
+    for bad in (dict(neighbors=2), dict(neighbors=2.5), dict(reference_points=-1),
+                dict(plane_points=-1)):
         with pytest.raises(ParameterError):
             FitParams(denoise=DenoiseParams(**bad)).validate()
 

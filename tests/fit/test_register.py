@@ -315,9 +315,10 @@ def test_gaussians_left_out_of_the_cap_keep_the_denoisers_plane_test():
 
 
 def test_a_capped_leafs_silhouette_outline_is_the_whole_leafs():
-    """The outline term's silhouette of a leaf capped to a tenth of its Gaussians spans the
-    same blade as all of them: the subset's footprints grow by the inverse share, so the
-    silhouette neither shrinks nor frays with the capture's density."""
+    """The outline term's silhouette of a leaf capped to a tenth (a fiftieth) of its Gaussians
+    is the whole leaf's: it renders every Gaussian the denoiser keeps, so it neither shrinks
+    and frays (the subset at its own size) nor blurs outwards (the subset widened) with the
+    capture's density."""
     from leaffit_usd.fit.denoise import DenoiseParams
     from leaffit_usd.fit.register import _Covariances, _prepare_leaf, _silhouette_outline
     from leaffit_usd.segment.result import Segmentation
@@ -335,11 +336,17 @@ def test_a_capped_leafs_silhouette_outline_is_the_whole_leafs():
                        leaf_tip=np.array([int(np.argmax(means[:, 0]))]))
     covs, opac = _Covariances(cloud), np.full(n, 0.9)
 
-    def span(cap):
+    def outline(cap):
         lf = _prepare_leaf(1, cloud.means.astype(np.float64), seg, DenoiseParams(), cap=cap, seed=0)
-        o = _silhouette_outline(lf, covs, opac, 0.5) * lf.scale
-        return np.ptp(o, 0), len(o)
+        assert lf.capped == (cap > 0)
+        return _silhouette_outline(lf, covs, opac, 0.5, cloud.means.astype(np.float64)) * lf.scale
 
-    (full, n_full), (capped, n_capped) = span(0), span(n // 10)
-    assert np.allclose(capped, full, rtol=0.05)
-    assert n_capped < 1.5 * n_full   # one clean rim, not a frayed one
+    full = outline(0)
+    px = np.ptp(full, 0).max() / 256
+    for cap in (n // 10, n // 50):
+        o = outline(cap)
+        assert np.allclose(np.ptp(o, 0), np.ptp(full, 0), rtol=0.005)
+        assert len(o) < 1.1 * len(full)                     # one clean rim, not a frayed one
+        # the same rim: within a pixel on average both ways (the subset widened by the inverse
+        # share, as before: 1.5-4.4 px and 1-5 % wider; at its own size: a few specks)
+        assert cKDTree(full).query(o)[0].mean() < px and cKDTree(o).query(full)[0].mean() < px
