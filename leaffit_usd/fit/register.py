@@ -74,7 +74,7 @@ from leaffit_usd.fit.mls import DEFAULT_SIGMA, mls_weights
 from leaffit_usd.fit.params import FitParams
 from leaffit_usd.fit.result import LeafFits
 from leaffit_usd.geometry.pca import leaf_frame, pca
-from leaffit_usd.geometry.sampling import farthest_point_sampling, position_order_sample
+from leaffit_usd.geometry.sampling import farthest_point_sampling, sample_at_most
 from leaffit_usd.segment.result import Segmentation
 from leaffit_usd.splats.cloud import GaussianCloud
 from leaffit_usd.splats.render import render_orthographic
@@ -587,15 +587,14 @@ def _seen_face_on(lf: _Leaf) -> bool:
 
 
 def _silhouette_outline(lf: _Leaf, covs: "_Covariances", opac: np.ndarray, thr: float,
-                        means: np.ndarray | None = None, long_side: int = 256) -> np.ndarray:
+                        means: np.ndarray, long_side: int = 256) -> np.ndarray:
     """(n, 2) the leaf's splat silhouette outline in its plane: the centres of the boundary
     pixels of the largest region (holes filled) where its kept Gaussians, rendered along the
     local -Z, cover alpha > ``thr``; leaf local frame, template units (``/ lf.scale``). A
     ``long_side`` px image over the leaf's xy extent grown by 10 %. (0, 2) for a leaf with
-    fewer than 3 Gaussians. ``means`` : (N, 3) the cloud's centres, working frame; with them a
-    capped leaf (``leaf_gaussians``) renders every Gaussian the denoiser would keep
-    (:func:`_all_kept`: its subset at their denoised centres, the rest at their own), without
-    them its subset alone.
+    fewer than 3 Gaussians. ``means`` : (N, 3) the cloud's centres, working frame: a capped
+    leaf (``leaf_gaussians``) renders every Gaussian the denoiser would keep (:func:`_all_kept`:
+    its subset at their denoised centres, the rest at their own).
 
     Why the silhouette and not the outermost centres: the Gaussians' centres stop inside the
     leaf's edge by about a splat footprint, an absolute distance (the capture's), not a fraction
@@ -610,7 +609,7 @@ def _silhouette_outline(lf: _Leaf, covs: "_Covariances", opac: np.ndarray, thr: 
         return np.zeros((0, 2))
     R, t = lf.frame[:3, :3], lf.frame[:3, 3]
     g, pts = lf.gaussians, lf.local / lf.scale
-    if lf.capped and means is not None:
+    if lf.capped:
         # a capped leaf: every Gaussian the denoiser would keep, not only its subset (those left
         # out at their own centres), so the silhouette is the one all its Gaussians cover
         extra = np.setdiff1d(_all_kept(lf, means), g, assume_unique=True)
@@ -672,7 +671,7 @@ def _refine(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray,
     leaf's rim (overlap: the deformed template's centres reached 0.97-0.99 of the leaf's
     radial extent) and does not follow a leaf whose outline differs from the template's.
     """
-    X = T.local[_at_most(T.local, params.refine_points)]
+    X = T.local[sample_at_most(T.local, params.refine_points)]
     A = mls_weights(p, X, params.sigma, params.reg)                      # (M, K)
     K = len(p)
     out = np.array(q0, np.float64)
@@ -689,7 +688,7 @@ def _refine(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray,
         E_xy = np.diag([1.0, 1.0, 0.0])
     for b, lf in enumerate(leaves):
         g_lm = params.landmark_weight * A_lm.T @ np.stack([np.zeros(3), lf.apex / lf.scale])
-        sub = _at_most(lf.local, params.refine_points)
+        sub = sample_at_most(lf.local, params.refine_points)
         Y = lf.local[sub] / lf.scale
         N = lf.normals[sub]
         tree = cKDTree(Y)
@@ -719,14 +718,6 @@ def _refine(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray,
             q = np.linalg.solve(H + mu * np.eye(len(H)), g + mu * q.reshape(-1)).reshape(K, 3)
         out[b] = q
     return out
-
-
-def _at_most(points: np.ndarray, n: int) -> np.ndarray:
-    """(min(N, n),) indices of ``points`` (N, 3): all, or a position-order random sample of n
-    (``geometry.sampling``; 0 = all)."""
-    if n <= 0:
-        return np.arange(len(points))
-    return position_order_sample(points, int(n), seed=0)
 
 
 class Adam:

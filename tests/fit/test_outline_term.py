@@ -45,16 +45,16 @@ def test_silhouette_outline_is_the_splats_edge_in_template_units():
     t = rng.uniform(0, 2 * np.pi, 4000)
     disk = np.c_[r * np.cos(t), r * np.sin(t), np.zeros(4000)]
     op = np.full(4000, 0.8)
-    out = _silhouette_outline(_leaf(1, disk), _Covs(0.003), op, 0.5)
+    out = _silhouette_outline(_leaf(1, disk), _Covs(0.003), op, 0.5, disk)
     rad = np.hypot(out[:, 0], out[:, 1])
     assert 0.1 < np.median(rad) < 0.1 + 3 * 0.003, np.median(rad)     # past the centres, by a splat
     assert rad.min() > 0.09                                             # only the rim: holes filled
     ang = np.floor((np.arctan2(out[:, 1], out[:, 0]) + np.pi) / (2 * np.pi) * 36).astype(int)
     assert len(np.unique(ang)) == 36                                    # all round
     # the same leaf twice as large (its splats too): the same outline in template units
-    big = _silhouette_outline(_leaf(2, 2 * disk, scale=2.0), _Covs(0.006), op, 0.5)
+    big = _silhouette_outline(_leaf(2, 2 * disk, scale=2.0), _Covs(0.006), op, 0.5, 2 * disk)
     assert abs(np.median(np.hypot(big[:, 0], big[:, 1])) - np.median(rad)) < 0.002
-    assert _silhouette_outline(_leaf(3, disk[:2]), _Covs(0.003), op, 0.5).shape == (0, 2)
+    assert _silhouette_outline(_leaf(3, disk[:2]), _Covs(0.003), op, 0.5, disk[:2]).shape == (0, 2)
 
 
 def test_refinement_draws_the_template_outline_onto_the_leafs():
@@ -66,7 +66,7 @@ def test_refinement_draws_the_template_outline_onto_the_leafs():
     Y = _blade(0.2, 0.09, 3400, rng, bulge=0.03)
     T, tgt = _leaf(1, X), _leaf(2, Y)
     op = np.full(len(Y), 0.8)
-    oT, oY = (_silhouette_outline(lf, _Covs(0.004), op, 0.5) for lf in (T, tgt))
+    oT, oY = (_silhouette_outline(lf, _Covs(0.004), op, 0.5, lf.local) for lf in (T, tgt))
     p = X[farthest_point_sampling(X, 32, start=0)]
     sigma = 0.07
     res = {}

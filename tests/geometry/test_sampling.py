@@ -43,6 +43,10 @@ def test_position_order_sample_ignores_the_order():
     assert len(a) == 700 and np.all(np.diff(a) > 0)
     assert set(a.tolist()) == set(perm[b].tolist())
     assert np.array_equal(position_order_sample(p[:300], 700, seed=4), np.arange(300))
+    # sample_at_most: the same sample, and 0 = no limit
+    from leaffit_usd.geometry.sampling import sample_at_most
+    assert np.array_equal(sample_at_most(p, 700, seed=4), a)
+    assert np.array_equal(sample_at_most(p, 0), np.arange(5000))
 
 
 def test_position_order_is_lexsorts_order_with_ties():
