@@ -17,6 +17,11 @@ Convention (owned here):
   ``alpha_i = min(0.99, o_i exp(-0.5 d^T S_i^-1 d))``, zeroed below 1/255;
   ``T_i = prod_{k<i} (1 - alpha_k)`` in depth order (nearest first);
   ``color = sum_i T_i alpha_i c_i + T_final * background``, ``alpha = 1 - T_final``.
+  ``antialias=True`` is Mip-Splatting's 2D filter (Yu et al. 2024): the opacity is scaled by
+  ``sqrt(det S / det(S + dilation I))`` (S the undilated 2D covariance, px^2), so the dilation
+  spreads a splat's mass without adding to it and a sub-pixel splat covers what its size says.
+  Without it, 3DGS's dilation turns every sub-pixel splat into a ~0.55 px blob of its full
+  opacity, and a surface covered by many of them renders wider as the splats get denser.
   Differences from the CUDA rasteriser: no early stop at T < 1e-4 (contributions below 1e-4 are
   kept, which only makes it exact and smooth), global depth sort of centres as in 3DGS.
 * ``depth`` is the composited **view-frame z coordinate** (not a distance), normalised by the
@@ -100,7 +105,8 @@ def _validate(means, cov, colors, opacities, width, height, bounds):
 
 def render_orthographic(means, cov, colors, opacities, width: int, height: int, bounds,
                         background=None, from_below: bool = False, dilation: float = DILATION,
-                        tile: int | None = None, max_elements: int = 1 << 23) -> RenderResult:
+                        tile: int | None = None, max_elements: int = 1 << 23,
+                        antialias: bool = False) -> RenderResult:
     """Render Gaussians orthographically along the view frame's Z axis (differentiable).
 
     means : (N, 3) float tensor, view frame
@@ -115,6 +121,8 @@ def render_orthographic(means, cov, colors, opacities, width: int, height: int, 
     tile : tile side in pixels (4, 8 or 16); None = chosen from the Gaussians' median footprint
         (small splats -> small tiles: the work is ~ (tile + 2 radius)^2 per Gaussian)
     max_elements : bound on (pixels x Gaussians) per vectorised chunk (memory ~ 40 B each)
+    antialias : Mip-Splatting's 2D filter: opacities scaled by sqrt(det S / det(S + dilation))
+        (module doc), so the render of a surface does not widen as its splats shrink
 
     Returns :class:`RenderResult` of tensors with the dtype of ``means``.
     """
@@ -136,6 +144,9 @@ def render_orthographic(means, cov, colors, opacities, width: int, height: int, 
     det = (a * c - b * b).clamp_min(1e-12)
     ia, ib, ic = c / det, -b / det, a / det         # conic (inverse 2D covariance)
     z = means[:, 2]
+    if antialias:
+        det0 = ((a - dilation) * (c - dilation) - b * b).clamp_min(1e-12)
+        opacities = opacities * torch.sqrt(det0 / det)
 
     bins = _bin_tiles(u, v, a, c, det, z, opacities, W, H, tile, from_below)
     ts, n_tx, n_ty = bins.ts, bins.n_tx, bins.n_ty
@@ -325,7 +336,7 @@ class _Composite(torch.autograd.Function):
 
 def render_orthographic_np(means, cov, colors, opacities, width: int, height: int, bounds,
                            background=None, from_below: bool = False,
-                           dilation: float = DILATION) -> RenderResult:
+                           dilation: float = DILATION, antialias: bool = False) -> RenderResult:
     """Numpy in / numpy out wrapper of :func:`render_orthographic` (float32, no gradients).
 
     Arguments as :func:`render_orthographic` but numpy arrays; returns float32 arrays.
@@ -334,7 +345,7 @@ def render_orthographic_np(means, cov, colors, opacities, width: int, height: in
         t = lambda x: torch.as_tensor(np.ascontiguousarray(x, np.float32))  # noqa: E731
         r = render_orthographic(t(means), t(cov), t(colors), t(opacities), width, height, bounds,
                                 background=None if background is None else t(background),
-                                from_below=from_below, dilation=dilation)
+                                from_below=from_below, dilation=dilation, antialias=antialias)
     return RenderResult(r.color.numpy(), r.depth.numpy(), r.alpha.numpy())
 
 
@@ -355,7 +366,7 @@ def fit_bounds(means_xy, width: int, height: int, margin: float = 0.05):
 
 
 def render_reference(means, cov, colors, opacities, width, height, bounds, background=None,
-                     from_below=False, dilation=DILATION) -> RenderResult:
+                     from_below=False, dilation=DILATION, antialias=False) -> RenderResult:
     """Slow float64 numpy reference of :func:`render_orthographic` (every pixel x every Gaussian).
 
     For tests only; same conventions and formula, no tiling.
@@ -376,11 +387,13 @@ def render_reference(means, cov, colors, opacities, width, height, bounds, backg
     T = np.ones((height, width))
     J = np.diag([1 / sx, -1 / sy])
     for i in order:
-        S = J @ cov[i, :2, :2] @ J.T + dilation * np.eye(2)
+        S0 = J @ cov[i, :2, :2] @ J.T
+        S = S0 + dilation * np.eye(2)
         Si = np.linalg.inv(S)
+        o = op[i] * np.sqrt(max(np.linalg.det(S0), 0.0) / np.linalg.det(S)) if antialias else op[i]
         d = np.stack([(x - means[i, 0]) / sx, -(y - means[i, 1]) / sy], -1)
         power = -0.5 * np.einsum("hwi,ij,hwj->hw", d, Si, d)
-        a = np.minimum(ALPHA_MAX, op[i] * np.exp(np.minimum(power, 0.0)))
+        a = np.minimum(ALPHA_MAX, o * np.exp(np.minimum(power, 0.0)))
         a = np.where(a < ALPHA_MIN, 0.0, a)
         w = T * a
         col += w[..., None] * colors[i]

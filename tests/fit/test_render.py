@@ -18,18 +18,48 @@ def _random_gaussians(rng, n, spread=0.6, size=0.2):
     return m, cov, rng.uniform(size=(n, 3)), rng.uniform(0.2, 0.95, n)
 
 
-@pytest.mark.parametrize("from_below", [False, True])
-def test_matches_reference_float64(from_below):
+@pytest.mark.parametrize("from_below,antialias", [(False, False), (True, False), (False, True)])
+def test_matches_reference_float64(from_below, antialias):
     rng = np.random.default_rng(0)
-    m, cov, col, op = _random_gaussians(rng, 25)
+    m, cov, col, op = _random_gaussians(rng, 25, size=0.03 if antialias else 0.2)
     b = (-1.2, 1.3, -1.1, 1.0)                      # non-square pixels, size not a tile multiple
     ref = render_reference(m, cov, col, op, 37, 29, b, background=[0.1, 0.2, 0.3],
-                           from_below=from_below)
+                           from_below=from_below, antialias=antialias)
     out = render_orthographic(*(torch.tensor(x) for x in (m, cov, col, op)), 37, 29, b,
-                              background=[0.1, 0.2, 0.3], from_below=from_below)
+                              background=[0.1, 0.2, 0.3], from_below=from_below,
+                              antialias=antialias)
     for r, o in zip(ref, out):
         assert o.dtype == torch.float64
         np.testing.assert_allclose(o.numpy(), r, atol=ATOL64)
+
+
+def _square_of_splats(per_side: int, half: float = 1.0):
+    """A flat square [-half, half]^2 covered by a per_side^2 grid of round splats of sigma 0.6
+    spacing (a surface and its splats: denser captures have more, smaller splats)."""
+    sp = 2 * half / per_side
+    g = -half + sp * (np.arange(per_side) + 0.5)
+    xy = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    m = np.concatenate([xy, np.zeros((len(xy), 1))], 1)
+    cov = np.tile(np.diag([(0.6 * sp) ** 2, (0.6 * sp) ** 2, 1e-8]), (len(m), 1, 1))
+    return m, cov, np.full((len(m), 3), 0.5), np.full(len(m), 0.9)
+
+
+def test_antialias_keeps_a_surfaces_silhouette_as_its_splats_shrink():
+    """Mip-Splatting's 2D filter: a square seen at 64 px renders (alpha >= 0.5) at about its
+    true size (+6 % from the splats' spread past the last centres) whether its splats are
+    2.4 px or 0.15 px (sigma); 3DGS's plain dilation grows the dense one's silhouette by 16 %
+    (each sub-pixel splat a ~0.55 px blob of full opacity)."""
+    b, W = (-1.5, 1.5, -1.5, 1.5), 64
+    true_px = (2.0 / 3.0 * W) ** 2
+    area = {}
+    for per_side in (16, 64, 256):                  # splat sigma 2.4, 0.6 and 0.15 px
+        for aa in (False, True):
+            r = render_orthographic_np(*_square_of_splats(per_side), W, W, b, antialias=aa)
+            area[per_side, aa] = float((r.alpha >= 0.5).sum()) / true_px
+    assert area[16, True] == pytest.approx(area[16, False], abs=0.01)   # large splats: as before
+    for per_side in (16, 64, 256):
+        assert abs(area[per_side, True] - 1.0) < 0.08
+    assert area[256, False] > 1.12
 
 
 def test_numpy_wrapper_float32_and_small_chunks():
