@@ -74,7 +74,7 @@ from leaffit_usd.fit.mls import DEFAULT_SIGMA, mls_weights
 from leaffit_usd.fit.params import FitParams
 from leaffit_usd.fit.result import LeafFits
 from leaffit_usd.geometry.pca import leaf_frame, pca
-from leaffit_usd.geometry.sampling import farthest_point_sampling, sample_at_most
+from leaffit_usd.geometry.sampling import farthest_point_sampling, position_order_sample, sample_at_most
 from leaffit_usd.segment.result import Segmentation
 from leaffit_usd.splats.cloud import GaussianCloud
 from leaffit_usd.splats.render import render_orthographic
@@ -268,12 +268,13 @@ def _start_index(points: np.ndarray) -> int:
     return int(np.argmin((np.asarray(points) ** 2).sum(1))) if len(points) else 0
 
 
-def _leaf_subset(idx: np.ndarray, cap: int, label: int, seed: int) -> np.ndarray:
-    """At most ``cap`` of the indices ``idx`` (sorted), a deterministic random choice per leaf."""
+def _leaf_subset(idx: np.ndarray, means: np.ndarray, cap: int, label: int, seed: int) -> np.ndarray:
+    """At most ``cap`` of the indices ``idx`` (sorted) into ``means`` (N, 3): a seeded random
+    choice per leaf, drawn in position order (``position_order_sample``), so the same capture in
+    another file order fits the same subset."""
     if cap <= 0 or len(idx) <= cap:
         return idx
-    rng = np.random.default_rng([int(seed), int(label), 0x5EED])
-    return idx[np.sort(rng.choice(len(idx), cap, replace=False))]
+    return idx[position_order_sample(means[idx], cap, [int(seed), int(label), 0x5EED])]
 
 
 def _all_kept(lf: _Leaf, means: np.ndarray) -> np.ndarray:
@@ -312,7 +313,7 @@ def _prepare_leaf(label: int, means: np.ndarray, seg: Segmentation, dn: DenoiseP
     if len(idx_all) == 0:
         return _Leaf(label, idx_all.astype(np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.eye(4), 0.0,
                      "no Gaussians in the segmentation")
-    idx = _leaf_subset(idx_all, cap, label, seed)
+    idx = _leaf_subset(idx_all, means, cap, label, seed)
     pts = means[idx]
     base, apex = _base_apex(label, idx_all, means, seg)
     res = denoise_leaf(pts, dn)

@@ -93,10 +93,11 @@ def grid_order(points: np.ndarray, cells: int = 64) -> np.ndarray:
     return np.lexsort((c[:, 0], c[:, 1], c[:, 2])).astype(np.int64)
 
 
-def position_order_sample(points: np.ndarray, k: int, seed: int) -> np.ndarray:
+def position_order_sample(points: np.ndarray, k: int, seed) -> np.ndarray:
     """(min(N, k),) int64 sorted indices into ``points`` (N, 3): a seeded random sample of k
     points drawn from the points in position order (:func:`position_order`), not in their given
-    order, so the same points in another file order give the same sample. All when N <= k."""
+    order, so the same points in another file order give the same sample. All when N <= k.
+    ``seed``: an int or a sequence of ints (``np.random.default_rng``'s seed)."""
     n = len(points)
     if n <= k:
         return np.arange(n, dtype=np.int64)

@@ -291,6 +291,36 @@ def test_leaf_gaussian_cap_bounds_what_the_fit_reads(plant, monkeypatch):
     assert cov_rows and max(cov_rows) <= 64
 
 
+def test_a_capped_fit_does_not_depend_on_the_file_order(plant):
+    """The same capture in another file order (a format converter may sort the splats, e.g. by
+    Morton code) fits the same capped subsets, so the same leaves: the subset is drawn in
+    position order, not by index."""
+    from dataclasses import replace
+
+    n = len(plant.cloud.means)
+    perm = np.random.default_rng(5).permutation(n)
+    inv = np.argsort(perm)                                  # old index -> new index
+    seg = plant.seg
+    seg_p = replace(seg, labels=seg.labels[perm], root_index=int(inv[seg.root_index]),
+                    apex_indices=inv[seg.apex_indices], leaf_tip=inv[seg.leaf_tip],
+                    leaf_base=inv[seg.leaf_base], tree_nodes=inv[seg.tree_nodes],
+                    dist_root=seg.dist_root[perm] if len(seg.dist_root) == n else seg.dist_root)
+    params = FitParams(optimize=False, leaf_gaussians=600)
+    a = fit_leaves(plant.cloud, seg, params)
+    b = fit_leaves(plant.cloud.subset(perm), seg_p, params)
+    assert np.bincount(seg.labels)[1:].min() > 600          # every leaf is capped
+    assert a.template_label == b.template_label
+    np.testing.assert_allclose(b.leaf_to_working, a.leaf_to_working, atol=1e-9)
+    assert np.array_equal(np.sort(perm[b.template_gaussians]), np.sort(a.template_gaussians))
+    # the same control points (FPS returns them in index order, so in another order) and the
+    # same deformation of the template: the same leaves
+    order = cKDTree(a.template_controls).query(b.template_controls)[1]
+    np.testing.assert_allclose(b.template_controls, a.template_controls[order], atol=1e-6)
+    for j in range(plant.seg.n_leaves):
+        np.testing.assert_allclose(_deformed_working(b, j, a.template_points),
+                                   _deformed_working(a, j), atol=1e-5)
+
+
 def test_gaussians_left_out_of_the_cap_keep_the_denoisers_plane_test():
     """A leaf larger than the cap: the Gaussians left out of its subset join the template's set
     only when they lie on the blade (within the denoiser's residual limit of their nearest kept
