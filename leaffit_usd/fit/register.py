@@ -74,7 +74,7 @@ from leaffit_usd.fit.mls import DEFAULT_SIGMA, mls_weights
 from leaffit_usd.fit.params import FitParams
 from leaffit_usd.fit.result import LeafFits
 from leaffit_usd.geometry.pca import leaf_frame, pca
-from leaffit_usd.geometry.sampling import farthest_point_sampling, position_order_sample, sample_at_most
+from leaffit_usd.geometry.sampling import farthest_point_sampling, sample_at_most
 from leaffit_usd.segment.result import Segmentation
 from leaffit_usd.splats.cloud import GaussianCloud
 from leaffit_usd.splats.render import render_orthographic
@@ -272,9 +272,7 @@ def _leaf_subset(idx: np.ndarray, means: np.ndarray, cap: int, label: int, seed:
     """At most ``cap`` of the indices ``idx`` (sorted) into ``means`` (N, 3): a seeded random
     choice per leaf, drawn in position order (``position_order_sample``), so the same capture in
     another file order fits the same subset."""
-    if cap <= 0 or len(idx) <= cap:
-        return idx
-    return idx[position_order_sample(means[idx], cap, [int(seed), int(label), 0x5EED])]
+    return idx[sample_at_most(means[idx], cap, [int(seed), int(label), 0x5EED])]
 
 
 def _all_kept(lf: _Leaf, means: np.ndarray) -> np.ndarray:

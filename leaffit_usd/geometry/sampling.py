@@ -105,9 +105,10 @@ def position_order_sample(points: np.ndarray, k: int, seed) -> np.ndarray:
     return np.sort(by_position[np.random.default_rng(seed).choice(n, k, replace=False)]).astype(np.int64)
 
 
-def sample_at_most(points: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
+def sample_at_most(points: np.ndarray, n: int, seed=0) -> np.ndarray:
     """(min(N, n),) int64 sorted indices into ``points`` (N, 3): all of them when N <= n or
-    n <= 0 (no limit), else :func:`position_order_sample` of n (free of the file order)."""
+    n <= 0 (no limit), else :func:`position_order_sample` of n (free of the file order; ``seed``
+    as there)."""
     if n <= 0:
         return np.arange(len(points), dtype=np.int64)
     return position_order_sample(points, int(n), seed)

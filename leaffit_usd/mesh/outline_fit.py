@@ -29,8 +29,9 @@ def splat_alpha_image(means: np.ndarray, cov: np.ndarray, opac: np.ndarray, pad:
     leaf's size, so the denser the capture the smaller its splats are in pixels, and 3DGS's
     plain dilation (each splat at least ~0.55 px at its full opacity) widened the silhouette
     with the density: a fringe of sub-pixel splats past a tip or along a petiole stub reached
-    alpha 0.5. The capsicum of ``benchmarks/scale.py`` (seed 1, Corr / HD / OE x10 of height)
-    at 100k / 1M / 5M Gaussians: 0.00861 / 0.0404 / 0.0108, 0.00833 / 0.0390 / 0.0103,
+    alpha 0.5. The capsicum of ``benchmarks/scale.py`` (seed 1, Corr / HD / OE x10 of height,
+    main at a8b4436 / e8f97f3; at 1M and 5M the HD also moves by +-0.004 with the fit's random
+    subsets, README) at 100k / 1M / 5M Gaussians: 0.00861 / 0.0404 / 0.0108, 0.00833 / 0.0390 / 0.0103,
     0.00838 / 0.0452 / 0.0120 with the plain dilation; 0.00857 / 0.0413 / 0.0106,
     0.00824 / 0.0417 / 0.0091, 0.00817 / 0.0412 / 0.0084 with the filter."""
     from leaffit_usd.splats.render import render_orthographic_np
