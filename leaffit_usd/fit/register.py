@@ -32,8 +32,9 @@ Per plant, in the working frame (root at origin, +Z up, height 1):
    most ``max_points`` Gaussians (farthest point sampling), template and target alike; pixels
    the subset leaves uncovered (alpha <= 0.5) are outside Omega.
 6. **Refinement** (ours, ``params.refine`` iterations; ``FitParams.paper()`` skips it): Gauss-Newton
-   on the same objective, see :func:`_refine`, plus two landmarks (petiole base and apex, known
-   from the segmentation) that keep the tip covered.
+   on the same objective, see :func:`_refine`, plus two landmarks that keep the tip covered: the
+   petiole base (the segmentation's) and the apex (the segmentation's, moved to the edge of the
+   denoised blade: :func:`_apex_at_blade_edge`).
 7. **Degenerate leaves** (fewer than K Gaussians after denoising, collinear, a size ratio to the
    template beyond ``max_scale_ratio``, or a non-finite result) get a warning and the rigid fit:
    ``targets = p`` (identity MLS) with the leaf's frame and scale. Never NaN.
@@ -81,6 +82,11 @@ from leaffit_usd.splats.render import render_orthographic
 
 log = logging.getLogger("leaffit_usd")
 
+# the apex landmark's neighbourhood (x the base-apex distance) searched for the blade's edge
+APEX_EDGE_RADIUS = 0.1
+# steps of the walk out to the edge (each one a step along the outward direction)
+APEX_EDGE_STEPS = 4
+
 @dataclass
 class _Leaf:
     label: int
@@ -90,7 +96,7 @@ class _Leaf:
     frame: np.ndarray              # (4, 4) rigid local -> working
     size: float
     degenerate: str = ""           # reason, "" if fine
-    apex: np.ndarray = field(default_factory=lambda: np.zeros(3))   # (3,) apex Gaussian, local frame
+    apex: np.ndarray = field(default_factory=lambda: np.zeros(3))   # (3,) apex landmark, local frame
     scale: float = 1.0
     all_gaussians: np.ndarray | None = None  # (A,) every Gaussian of the leaf (segmentation)
     sampled: np.ndarray | None = None        # (S,) those that entered denoising (<= leaf_gaussians)
@@ -317,6 +323,9 @@ def _prepare_leaf(label: int, means: np.ndarray, seg: Segmentation, dn: DenoiseP
     res = denoise_leaf(pts, dn)
     kept = idx[res.keep]
     dpts = res.points
+    # the frame keeps the segmentation's apex: the walked one moves across a blunt tip with
+    # the sample (a capped leaf's frame would turn with its subset); the landmark takes the edge
+    tip = _apex_at_blade_edge(dpts, base, apex)
     frame = leaf_frame(dpts if len(dpts) else pts, base, apex)
     local = (dpts - frame[:3, 3]) @ frame[:3, :3]
     normals = res.normals @ frame[:3, :3]
@@ -339,9 +348,64 @@ def _prepare_leaf(label: int, means: np.ndarray, seg: Segmentation, dn: DenoiseP
     if not np.isfinite(local).all():
         reason = "non-finite positions"
         local = normals = np.zeros((0, 3))
-    apex_local = (apex - frame[:3, 3]) @ frame[:3, :3]
+    apex_local = (tip - frame[:3, 3]) @ frame[:3, :3]
     return _Leaf(label, kept.astype(np.int64), local, normals, frame, size, reason, apex=apex_local,
                  all_gaussians=idx_all, sampled=idx, residual_limit=res.residual_limit)
+
+
+def _apex_at_blade_edge(points: np.ndarray, base: np.ndarray, apex: np.ndarray,
+                        radius: float = APEX_EDGE_RADIUS) -> np.ndarray:
+    """(3,) the apex landmark walked out to the edge of the denoised blade. ``points`` (M, 3):
+    the leaf's denoised centres; ``base``, ``apex`` (3,): the segmentation's; working frame.
+    Each step (at most ``APEX_EDGE_STEPS``) takes the points within ``radius`` x |apex - base|
+    of the apex, the direction u from the centroid of the area they cover to the apex (the
+    blade's outward direction there), and moves as far along u as the farthest of them and
+    across to the mean of those within a cell (reach / 8) of the farthest. ``apex`` unchanged
+    when fewer than 3 points are that near.
+
+    Why: the segmentation's apex is one Gaussian, its largest root distance among the geodesic
+    domain's points. That is the leaf's outermost Gaussian on a plant under the domain's size
+    (120k), but a subsample point inside the tip by about a sample spacing on a denser capture,
+    and an off-surface fuzz Gaussian where one is outermost. The refinement pins the deformed
+    template's apex to the target's (landmarks), so the offset of each leaf's apex Gaussian from
+    its tip, and the template's, went straight into the leaves' tips: the Hausdorff distance of
+    most leaves was at the tip (``benchmarks/scale.py``, paper8 capsicum seeds 1-3, auto labels,
+    HD x10 at 100k / 1M: 0.0391 / 0.0454, 0.0527 / 0.0447, 0.0511 / 0.0430 before; README
+    for after). The denoised points have no fuzz. Outwards from the local centroid, not
+    farthest from the base: a tip curled back towards the base has its end nearer the base
+    than the bend before it. A step, not a jump to the farthest point: from an apex inside the
+    blade the first direction is rough, and a jump lands on the rim beside the tip, where the
+    next direction points off the blade."""
+    P = np.asarray(points, np.float64)
+    reach = radius * float(np.linalg.norm(apex - base))
+    if len(P) < 3 or reach <= 0:
+        return apex
+    for _ in range(APEX_EDGE_STEPS):
+        near = P[np.linalg.norm(P - apex, axis=1) <= reach]
+        if len(near) < 3:
+            return apex
+        # the centroid of the area they cover, not of the points: a capture's density varies
+        # (denser towards a narrowing tip), and a point centroid past the apex turned 'outwards' in
+        cell = np.floor((near - apex) / (reach / 8.0)).astype(np.int64)
+        _, inv = np.unique(cell, axis=0, return_inverse=True)
+        inv = inv.ravel()
+        per_cell = np.stack([np.bincount(inv, near[:, k]) for k in range(3)], 1) / np.bincount(inv)[:, None]
+        out = apex - per_cell.mean(0)
+        n = float(np.linalg.norm(out))
+        if n <= 1e-12 * reach:
+            return apex
+        # to the farthest points that way: as far out as the farthest, across to the mean of
+        # those within a cell of it (the farthest point alone jumped sideways on a blunt tip,
+        # where many are nearly as far, and turned the leaf's frame)
+        u = out / n
+        d = (near - apex) @ u
+        far = near[d >= d.max() - reach / 8.0] - apex
+        side = far.mean(0) - u * float((far @ u).mean())
+        step = u * max(float(d.max()), 0.0) + side
+        apex = apex + step
+        if np.linalg.norm(step) <= 1e-3 * reach:
+            break
+    return apex
 
 
 def _base_apex(label, idx, means, seg):

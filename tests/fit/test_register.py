@@ -380,3 +380,57 @@ def test_a_capped_leafs_silhouette_outline_is_the_whole_leafs():
         # the same rim: within a pixel on average both ways (the subset widened by the inverse
         # share, as before: 1.5-4.4 px and 1-5 % wider; at its own size: a few specks)
         assert cKDTree(full).query(o)[0].mean() < px and cKDTree(o).query(full)[0].mean() < px
+
+
+def _tip_blade(rng, n=20000):
+    """An elliptical blade (base at the origin, tip at x = 1, half-width 0.2), sampled uniformly
+    along its length, so denser per area where it narrows towards the tip (as captures are)."""
+    x = rng.uniform(0, 1, n)
+    y = rng.uniform(-1, 1, n) * 0.2 * np.sqrt(np.clip(1 - (2 * x - 1) ** 2, 0, None))
+    return np.column_stack([x, y, 0.002 * rng.standard_normal(n)])
+
+
+def test_apex_landmark_moves_to_the_blade_edge():
+    """The segmentation's apex (a subsample point inside the tip) walks out to the blade's tip;
+    one at the tip stays near it; a tip curled back keeps its end (not the bend, farther from the base);
+    too few points near it leave it alone."""
+    from leaffit_usd.fit.register import _apex_at_blade_edge
+
+    rng = np.random.default_rng(0)
+    P = _tip_blade(rng)
+    tip = P[np.argmax(P[:, 0])]
+    moved = _apex_at_blade_edge(P, np.zeros(3), np.array([0.93, 0.01, 0.0]))
+    assert moved[0] > 0.99 and abs(moved[1]) < 0.03, moved
+    # one at the tip stays there: within 1 % of the leaf (the edge's mean over a cell's depth)
+    assert np.linalg.norm(_apex_at_blade_edge(P, np.zeros(3), tip) - tip) < 0.01
+    # beyond x = 0.8 the blade curls up and back on a circle of radius 0.06 (xz)
+    t = np.linspace(0, 0.9 * np.pi, 400)
+    hook = np.column_stack([0.8 + 0.06 * np.sin(t), np.zeros_like(t), 0.06 - 0.06 * np.cos(t)])
+    Q = np.concatenate([P[P[:, 0] <= 0.8], np.repeat(hook, 20, 0)
+                        + np.column_stack([np.zeros(8000), rng.uniform(-0.02, 0.02, 8000), np.zeros(8000)])])
+    end = _apex_at_blade_edge(Q, np.zeros(3), hook[-40])
+    assert np.linalg.norm(end[[0, 2]] - hook[-1][[0, 2]]) < 0.005, end
+    lone = np.array([5.0, 0.0, 0.0])
+    np.testing.assert_array_equal(_apex_at_blade_edge(P, np.zeros(3), lone), lone)
+
+
+def test_a_leaf_frame_reaches_the_tip_when_the_segmentations_apex_falls_short(plant):
+    """The leaf's apex landmark (local frame) is its blade's tip even when the segmentation's
+    apex is a Gaussian 6 % of the leaf inside it (a geodesic subsample's point on a dense
+    capture): the refinement pins the template's tip there."""
+    from dataclasses import replace
+
+    from leaffit_usd.fit.register import _prepare_leaf
+
+    m = plant.cloud.means
+    inner = []
+    for j in range(plant.seg.n_leaves):
+        idx = plant.seg.leaf_indices(j + 1)
+        b, t = m[plant.seg.leaf_base[j]], m[plant.seg.leaf_tip[j]]
+        inner.append(idx[np.argmin(np.linalg.norm(m[idx] - (t - 0.06 * (t - b)), axis=1))])
+    short = replace(plant.seg, leaf_tip=np.asarray(inner, np.int64))
+    p = FitParams()
+    for j in range(plant.seg.n_leaves):
+        lf = _prepare_leaf(j + 1, np.asarray(m, np.float64), short, p.denoise)
+        reach = lf.local[:, 0].max()
+        assert lf.apex[0] > reach - 0.01 * reach, (j, lf.apex, reach)
