@@ -75,7 +75,7 @@ from leaffit_usd.fit.mls import DEFAULT_SIGMA, mls_weights
 from leaffit_usd.fit.params import FitParams
 from leaffit_usd.fit.result import LeafFits
 from leaffit_usd.geometry.pca import leaf_frame, pca
-from leaffit_usd.geometry.sampling import farthest_point_sampling, sample_at_most
+from leaffit_usd.geometry.sampling import farthest_point_sampling, sample_at_most, voxel_centroids
 from leaffit_usd.segment.result import Segmentation
 from leaffit_usd.splats.cloud import GaussianCloud
 from leaffit_usd.splats.render import render_orthographic
@@ -369,9 +369,10 @@ def _apex_at_blade_edge(points: np.ndarray, base: np.ndarray, apex: np.ndarray,
     and an off-surface fuzz Gaussian where one is outermost. The refinement pins the deformed
     template's apex to the target's (landmarks), so the offset of each leaf's apex Gaussian from
     its tip, and the template's, went straight into the leaves' tips: the Hausdorff distance of
-    most leaves was at the tip (``benchmarks/scale.py``, paper8 capsicum seeds 1-3, auto labels,
-    HD x10 at 100k / 1M: 0.0391 / 0.0454, 0.0527 / 0.0447, 0.0511 / 0.0430 before; README
-    for after). The denoised points have no fuzz. Outwards from the local centroid, not
+    most leaves was at the tip (paper8 capsicum, auto labels, HD x10 at 100k / 1M before /
+    after: seed 1 0.0391 / 0.0454 -> 0.0368 / 0.0388, ``benchmarks/scale.py`` at 8a1e8fc and
+    4e99433; seeds 2, 3 scratch with the segmentation cached: 0.0527 / 0.0447 -> 0.0483 /
+    0.0410, 0.0511 / 0.0430 -> 0.0474 / 0.0361). The denoised points have no fuzz. Outwards from the local centroid, not
     farthest from the base: a tip curled back towards the base has its end nearer the base
     than the bend before it. A step, not a jump to the farthest point: from an apex inside the
     blade the first direction is rough, and a jump lands on the rim beside the tip, where the
@@ -386,11 +387,7 @@ def _apex_at_blade_edge(points: np.ndarray, base: np.ndarray, apex: np.ndarray,
             return apex
         # the centroid of the area they cover, not of the points: a capture's density varies
         # (denser towards a narrowing tip), and a point centroid past the apex turned 'outwards' in
-        cell = np.floor((near - apex) / (reach / 8.0)).astype(np.int64)
-        _, inv = np.unique(cell, axis=0, return_inverse=True)
-        inv = inv.ravel()
-        per_cell = np.stack([np.bincount(inv, near[:, k]) for k in range(3)], 1) / np.bincount(inv)[:, None]
-        out = apex - per_cell.mean(0)
+        out = apex - voxel_centroids(near, reach / 8.0, apex)[0].mean(0)
         n = float(np.linalg.norm(out))
         if n <= 1e-12 * reach:
             return apex

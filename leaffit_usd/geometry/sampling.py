@@ -1,5 +1,6 @@
-"""Farthest point sampling (FPS), returning indices into the input; and a seeded random sample
-that ignores the order of the points (:func:`position_order_sample`).
+"""Farthest point sampling (FPS), returning indices into the input; a seeded random sample
+that ignores the order of the points (:func:`position_order_sample`); voxel centroids
+(:func:`voxel_centroids`).
 
 open3d's C++ FPS does the work (about 0.6 s for 8,192 of 100k points on 2 cores, ~10x a numpy
 loop); it returns points rather than indices, so they are mapped back with an exact kd-tree
@@ -112,3 +113,20 @@ def sample_at_most(points: np.ndarray, n: int, seed=0) -> np.ndarray:
     if n <= 0:
         return np.arange(len(points), dtype=np.int64)
     return position_order_sample(points, int(n), seed)
+
+
+def voxel_centroids(points: np.ndarray, size: float, origin=None):
+    """The centroid of each occupied voxel of a grid of cubes of edge ``size`` with a corner at
+    ``origin`` (default: the points' minimum), same frame and units as ``points`` (N, 3).
+
+    Returns ((V, 3) centroids in voxel-key order (lexicographic in the voxel's x, y, z index),
+    (N,) int64 voxel of each point, (V,) int64 points per voxel)."""
+    p = np.asarray(points, np.float64)
+    keys = np.floor((p - (p.min(0) if origin is None else origin)) / size).astype(np.int64)
+    keys -= keys.min(0)
+    dims = keys.max(0) + 1  # one int64 key per voxel: a 1-D sort is ~10x faster than rows
+    _, inv, cnt = np.unique((keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2],
+                            return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    cen = np.stack([np.bincount(inv, p[:, i], len(cnt)) for i in range(3)], axis=1) / cnt[:, None]
+    return cen, inv, cnt

@@ -57,7 +57,7 @@ import numpy as np
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.geometry import knn as _knn
 from leaffit_usd.geometry.plane import plane_basis
-from leaffit_usd.geometry.sampling import position_order_sample
+from leaffit_usd.geometry.sampling import position_order_sample, voxel_centroids
 from leaffit_usd.isolate.result import (BACKGROUND, FLOATER, GROUND, PLANT, POT, SOIL,
                                         Isolation)
 
@@ -190,17 +190,12 @@ def _voxel_down(p: np.ndarray, target: int) -> tuple[np.ndarray, float]:
     Returns ((V, 3) centroids in voxel-key order, the voxel size)."""
     lo, hi = np.quantile(p, [0.005, 0.995], axis=0)
     size = (float(np.linalg.norm(hi - lo)) or 1.0) / 100.0
-    base = p.min(0)
     for _ in range(8):
-        keys = np.floor((p - base) / size).astype(np.int64)
-        dims = keys.max(0) + 1
-        _, inv, cnt = np.unique((keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2],
-                                return_inverse=True, return_counts=True)
+        cen, _, cnt = voxel_centroids(p, size)
         ratio = len(cnt) / target
         if 0.7 <= ratio <= 1.4:
             break
         size *= np.sqrt(ratio)
-    cen = np.stack([np.bincount(inv, p[:, i], len(cnt)) for i in range(3)], axis=1) / cnt[:, None]
     return cen, float(size)
 
 

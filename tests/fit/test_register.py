@@ -414,7 +414,7 @@ def test_apex_landmark_moves_to_the_blade_edge():
     np.testing.assert_array_equal(_apex_at_blade_edge(P, np.zeros(3), lone), lone)
 
 
-def test_a_leaf_frame_reaches_the_tip_when_the_segmentations_apex_falls_short(plant):
+def test_a_leafs_apex_landmark_reaches_the_tip_when_the_segmentations_apex_falls_short(plant):
     """The leaf's apex landmark (local frame) is its blade's tip even when the segmentation's
     apex is a Gaussian 6 % of the leaf inside it (a geodesic subsample's point on a dense
     capture): the refinement pins the template's tip there."""

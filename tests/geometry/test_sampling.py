@@ -78,3 +78,23 @@ def test_grid_order_visits_cells_z_major_each_cell_contiguous():
     assert np.all(o[same + 1] > o[same])                              # stable within a cell
     assert len(grid_order(np.zeros((0, 3)))) == 0
     assert np.array_equal(grid_order(np.zeros((4, 3))), np.arange(4))  # one point, any number
+
+
+def test_voxel_centroids_are_each_voxels_mean_whatever_the_origin():
+    """Each centroid is the mean of the points in its voxel (checked one voxel at a time), the
+    counts add up to the points, and an origin inside the points (negative voxel indices)
+    partitions them by the grid through that origin."""
+    from leaffit_usd.geometry.sampling import voxel_centroids
+
+    rng = np.random.default_rng(4)
+    p = rng.uniform(-1, 1, (3000, 3))
+    for origin in (None, np.array([0.05, -0.2, 0.3])):
+        cen, inv, cnt = voxel_centroids(p, 0.25, origin)
+        assert cnt.sum() == len(p) and len(cen) == len(cnt) == inv.max() + 1
+        o = p.min(0) if origin is None else origin
+        key = np.floor((p - o) / 0.25).astype(int)
+        for v in range(len(cen)):
+            members = inv == v
+            assert len(np.unique(key[members], axis=0)) == 1       # one voxel of that grid
+            np.testing.assert_allclose(cen[v], p[members].mean(0), rtol=0, atol=1e-12)
+        assert len(np.unique(key, axis=0)) == len(cen)
