@@ -217,7 +217,9 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         log.info("      %d Gaussians (SH degree %d)", len(cloud_in), cloud_in.sh_degree)
     with T.stage("isolate", "isolating the plant (ground, pot, soil, background, floaters)"
                  if not o.keep_scene else "isolation off (--keep-scene)"):
-        cloud, iso = isolate_stage(cloud_in, o.keep_scene, o.crop, o.up, o.isolate)
+        # the plant in an order of positions alone, so the asset does not depend on the file's
+        # order (a converter may sort the splats, e.g. by Morton code)
+        cloud, iso = isolate_stage(cloud_in, o.keep_scene, o.crop, o.up, o.isolate, canonical=True)
     with T.stage("frame", "choosing the frame (up axis, root)"):
         choice = frame_from_isolation(cloud, iso, o.up, o.root, o.root_index, cloud=cloud_in)
         frame, root_index = choice.frame, choice.root_index

@@ -94,6 +94,16 @@ def grid_order(points: np.ndarray, cells: int = 64) -> np.ndarray:
     return np.lexsort((c[:, 0], c[:, 1], c[:, 2])).astype(np.int64)
 
 
+def canonical_order(points: np.ndarray, cells: int = 64) -> np.ndarray:
+    """(N,) int64 indices that put ``points`` (N, 3), finite, in an order of their positions
+    alone: grid cells (:func:`grid_order`) visited in turn, within a cell by position
+    (:func:`position_order`). The same points in any given order come out the same (up to exact
+    duplicates, which keep their given order), and neighbours stay close in memory.
+    """
+    by_position = position_order(points)
+    return by_position[grid_order(np.asarray(points)[by_position], cells)]
+
+
 def position_order_sample(points: np.ndarray, k: int, seed) -> np.ndarray:
     """(min(N, k),) int64 sorted indices into ``points`` (N, 3): a seeded random sample of k
     points drawn from the points in position order (:func:`position_order`), not in their given

@@ -9,6 +9,7 @@ import logging
 import numpy as np
 
 from leaffit_usd.errors import InputFileError, ParameterError
+from leaffit_usd.geometry.sampling import canonical_order
 from leaffit_usd.isolate.result import BACKGROUND, Isolation
 from leaffit_usd.isolate.scene import Crop, IsolateParams, isolate_plant
 from leaffit_usd.splats.frame import make_frame
@@ -28,14 +29,17 @@ def _user_up(up):
     return u / np.linalg.norm(u)
 
 
-def isolate_stage(cloud, keep_scene: bool = False, crop=None, up=None, params: IsolateParams | None = None):
+def isolate_stage(cloud, keep_scene: bool = False, crop=None, up=None, params: IsolateParams | None = None,
+                  canonical: bool = False):
     """Plant isolation for a command: ``(plant cloud, Isolation)``.
 
     cloud : GaussianCloud, input frame; keep_scene : skip the automatic classification (the
     crop, when given, still applies); crop : a ``Crop`` or its text; up : the user's ``--up``
     (None/"auto", an axis text or a vector). The plant cloud is ``cloud.subset(plant)``: its
-    ``file_index`` still names each Gaussian's position in the input file. Logs what each
-    class removed. Raises UserError when nothing is left.
+    ``file_index`` still names each Gaussian's position in the input file. With ``canonical``
+    its Gaussians come in :func:`~leaffit_usd.geometry.sampling.canonical_order` (an order of
+    their positions alone: what follows then does not depend on the file's order), else in file
+    order. Logs what each class removed. Raises UserError when nothing is left.
     """
 
     if crop is not None and not isinstance(crop, Crop):
@@ -56,6 +60,9 @@ def isolate_stage(cloud, keep_scene: bool = False, crop=None, up=None, params: I
     if keep.sum() < 10:
         raise InputFileError("input", f"isolation left {int(keep.sum())} Gaussians of {len(cloud)} "
                              "(check --crop, or pass --keep-scene for a trimmed plant)")
+    if canonical:
+        plant = np.flatnonzero(keep)
+        return cloud.subset(plant[canonical_order(cloud.means[plant])]), iso
     return (cloud if keep.all() else cloud.subset(keep)), iso
 
 

@@ -98,3 +98,21 @@ def test_voxel_centroids_are_each_voxels_mean_whatever_the_origin():
             assert len(np.unique(key[members], axis=0)) == 1       # one voxel of that grid
             np.testing.assert_allclose(cen[v], p[members].mean(0), rtol=0, atol=1e-12)
         assert len(np.unique(key, axis=0)) == len(cen)
+
+
+def test_canonical_order_puts_shuffled_points_in_one_order_cell_by_cell():
+    """The same points in any order come out as the same sequence of positions (a grid order
+    alone keeps the given order inside each cell and fails this), and each grid cell's points
+    are contiguous."""
+    from leaffit_usd.geometry.sampling import canonical_order
+
+    rng = np.random.default_rng(4)
+    p = np.round(rng.normal(size=(4000, 3)), 2)      # ties in x and (x, y)
+    perm = rng.permutation(len(p))
+    a, b = p[canonical_order(p, 8)], p[perm][canonical_order(p[perm], 8)]
+    assert np.array_equal(a, b)
+    assert sorted(canonical_order(p, 8).tolist()) == list(range(len(p)))
+    size = float(np.ptp(p, 0).max()) / 8
+    cell = np.floor((a - a.min(0)) / size).astype(np.int64) @ np.array([1, 100, 10000])
+    assert np.all(np.diff(np.flatnonzero(np.r_[True, cell[1:] != cell[:-1]])) > 0)
+    assert len(np.unique(cell)) == (np.diff(cell) != 0).sum() + 1   # no cell visited twice
