@@ -88,14 +88,12 @@ def suite_plants(out: Path) -> list[Path]:
     return dirs
 
 
-def paper8_plants(out: Path, seed: int = 1) -> list[Path]:
-    """The external generator's paper8 plants (generated once into ``out``)."""
-    d = out / f"paper8-{seed}"
-    if not (d / "index.json").is_file():
-        subprocess.run([sys.executable, str(SHARED / "make_plants.py"), "--out", str(d), "--seed",
-                        str(seed), "--preset", "paper8"], check=True, stdout=subprocess.DEVNULL)
-    names = [p["name"] for p in json.loads((d / "index.json").read_text())["plants"]]
-    return [d / n for n in names]
+def paper8_plants(seed: int = 1) -> list[Path]:
+    """The external generator's paper8 plants of ``seed``, generated once into the shared cache
+    by ``external_plants.ensure_set`` (with the generator's own Python, which has its Pillow)."""
+    from benchmarks.external_plants import ensure_set, plants
+
+    return plants(ensure_set("paper8", seed))
 
 
 # ---- rendering ---------------------------------------------------------------------------------
@@ -577,14 +575,10 @@ def main(argv=None) -> int:
     if "suite" in sets:
         plants += [("suite", d) for d in suite_plants(work / "suite")]
     if "paper8" in sets:
-        import importlib.util
-
         if not (SHARED / "make_plants.py").is_file():
             print(f"skipping paper8: {SHARED} is absent (the external plants are not part of the repo)")
-        elif importlib.util.find_spec("PIL") is None:
-            print("skipping paper8: the external generator needs Pillow (pip install pillow)")
         else:
-            plants += [("paper8", d) for d in paper8_plants(work / "external")]
+            plants += [("paper8", d) for d in paper8_plants()]
     if not (SHARED / "eval_deform.py").is_file():
         print(f"surface errors skipped: {SHARED / 'eval_deform.py'} is absent")
     if args.plants:

@@ -90,13 +90,8 @@ def main(argv=None) -> int:
     sys.path.insert(0, str(SHARED))
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="leaffit_stem_"))
     sets = [s.strip() for s in args.sets.split(",")]
-    import importlib.util
-
-    if "paper8" in sets and importlib.util.find_spec("PIL") is None:
-        print("skipping paper8: the external generator needs Pillow (pip install pillow)")
-        sets.remove("paper8")
     plants = ([("suite", d) for d in suite_plants(work / "suite")] if "suite" in sets else []) + \
-             ([("paper8", d) for d in paper8_plants(work / "external")] if "paper8" in sets else [])
+             ([("paper8", d) for d in paper8_plants()] if "paper8" in sets else [])
     rows = []
     print(f"{'set':7s} {'plant':17s} {'Corr':>7s} {'floor':>7s} {'Comp':>7s} {'HD':>7s} {'tubes':>5s}  "
           f"vertices LOD0/1/2   s")
