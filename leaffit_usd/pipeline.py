@@ -1,7 +1,8 @@
 """``convert``: 3DGS capture -> LeafFit USD asset, the whole pipeline in one call.
 
     load_cloud -> isolate_plant (table, pot, soil, background, floaters removed; --keep-scene
-      turns it off) -> make_frame (up, root: the table normal and the stem base at the soil
+      turns it off; the plant kept in canonical order: the file's order changes nothing)
+      -> make_frame (up, root: the table normal and the stem base at the soil
       when isolation found them) -> transform_cloud (working frame)
       -> segment_plant  (or --labels L.npz, then --edits E.json)
       -> fit_leaves -> build_template_mesh + build_stem
