@@ -372,8 +372,8 @@ def _apex_at_blade_edge(points: np.ndarray, base: np.ndarray, apex: np.ndarray,
     most leaves was at the tip (paper8 capsicum, auto labels, HD x10 at 100k / 1M before /
     after: seed 1 0.0391 / 0.0454 -> 0.0368 / 0.0388, ``benchmarks/scale.py`` at 8a1e8fc and
     4e99433; seeds 2, 3 scratch with the segmentation cached: 0.0527 / 0.0447 -> 0.0483 /
-    0.0410, 0.0511 / 0.0430 -> 0.0474 / 0.0361). The denoised points have no fuzz. Outwards from the local centroid, not
-    farthest from the base: a tip curled back towards the base has its end nearer the base
+    0.0410, 0.0511 / 0.0430 -> 0.0474 / 0.0361). The denoised points have no fuzz. Outwards
+    from the local centroid, not farthest from the base: a tip curled back towards the base has its end nearer the base
     than the bend before it. A step, not a jump to the farthest point: from an apex inside the
     blade the first direction is rough, and a jump lands on the rim beside the tip, where the
     next direction points off the blade."""
