@@ -1782,6 +1782,21 @@ def _trim_redundant_tails(tubes: list[_Tube], q: np.ndarray, tau: float, sides: 
     return tubes
 
 
+def stem_labels(seg) -> np.ndarray:
+    """(N,) the segmentation's labels with the unassigned Gaussians it never reached from the
+    root set to -1: label 0 means "stem or unassigned", and only the reached ones are stem.
+    Why: a piece the segmentation left apart from the plant (``dist_root`` infinite) is not
+    stem, but the level-set skeleton bridges gaps and swept a tube through it: the pot-rim
+    remnants that isolation kept on two capture-like samples (185 of green_pepper's Gaussians,
+    all unreached) became a ring of tubes 0.14 plant heights from the stem
+    (``benchmarks/isolation.py --convert``). Labels unchanged when ``dist_root`` is absent."""
+    labels = np.asarray(seg.labels)
+    d = np.asarray(seg.dist_root)
+    if len(d) != len(labels):
+        return labels
+    return np.where((labels == 0) & ~np.isfinite(d), -1, labels)
+
+
 def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
                colors=None) -> Stem:
     """The stem as smooth swept tubes (module docstring).
@@ -1798,7 +1813,7 @@ def build_stem(seg, points_working, fits=None, params: StemParams | None = None,
     params.validate()
     pts_all = np.asarray(points_working, np.float64)
     _check_inputs(seg, pts_all)
-    labels = np.asarray(seg.labels)
+    labels = stem_labels(seg)
     sk, kind = _choose_skeleton(seg, pts_all, labels, params)
     if sk is None or len(sk.pos) < 2:
         log.warning("stem: the segmentation tree has no stem edges and no stem Gaussians; writing no stem")

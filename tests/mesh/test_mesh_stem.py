@@ -627,3 +627,25 @@ def test_redundant_tube_needs_both_no_gaussians_of_its_own_and_surface_off_the_d
     assert len(kept) == 3 and all(tb.parent_tube in (-1, 0) for tb in kept)
     # the rule needs both: with the far arc's surface on the data it would stay
     assert M._redundant_tubes(tubes[:2] + [tube(arc_axis, 0.002, 0, arc_own)], q, tau, 12) == []
+
+
+def test_unassigned_gaussians_the_segmentation_never_reached_get_no_tube():
+    """Label 0 is "stem or unassigned": a ring of Gaussians around the stem's base (a pot rim
+    that isolation kept) that the segmentation never reached from the root (``dist_root``
+    infinite) is not stem, though the skeleton's bridged graph would reach it. With the same
+    Gaussians reached, the ring does get tubes (the case the rule tells apart)."""
+    rng = np.random.default_rng(2)
+    stem = _tube_gaussians(rng, np.array([[0, 0, 0.0], [0, 0, 0.5]]), 0.01, 3000)
+    a = rng.uniform(0, 2 * np.pi, 1200)
+    ring = np.stack([0.08 * np.cos(a), 0.08 * np.sin(a), 0.05 + rng.normal(0, 0.002, 1200)], 1)
+    pts = np.concatenate([stem, ring])
+    d = np.concatenate([pts[:3000, 2], np.full(1200, np.inf)]).astype(np.float32)
+    root = int(np.argmin(stem[:, 2]))
+    far_from_ring = []
+    for dist in (d, np.where(np.isfinite(d), d, 1.0).astype(np.float32)):
+        seg = Segmentation(labels=np.zeros(len(pts), np.int32), root_index=root, dist_root=dist)
+        st = build_stem(seg, pts, None, StemParams())
+        radial = np.linalg.norm(st.points[:, :2], axis=1)
+        far_from_ring.append(float(radial.max()))
+    assert far_from_ring[0] < 0.03            # only the stem: its radius and the tip's closure
+    assert far_from_ring[1] > 0.06            # reached, the ring is swept as stem
