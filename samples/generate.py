@@ -900,7 +900,7 @@ def _sample_tube(axis: Axis, n: int, rng, colour, colour_end=None, jitter=0.0003
     return pos, np.stack([s_along, s_around, s_rad], 1), R, col, opa
 
 
-def _tube_surface_samples(axes: list[Axis], n: int, rng) -> np.ndarray:
+def tube_surface_samples(axes: list[Axis], n: int, rng) -> np.ndarray:
     """(n, 3) points uniformly by area on the exact surfaces of the tubes (canonical frame)."""
     segs = []
     for a in axes:
@@ -940,11 +940,10 @@ def _random_rotation(rng) -> np.ndarray:
 # the public entry point
 # ---------------------------------------------------------------------------------------------
 
-def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
-    """Generate one plant: a GaussianCloud (input frame, shuffled file order) and its GroundTruth.
-
-    Deterministic: the same (spec, seed) gives bit-identical arrays.
-    """
+def _structure(spec: PlantSpec, seed: int):
+    """The plant's geometry before any Gaussian is drawn: tubes (stem, branches and, last, one
+    petiole per leaf), placed leaves, habit, overlap pairs, and the random streams ``make_plant``
+    goes on with (Gaussian sampling, global frame, surroundings)."""
     # independent streams: structure, overlap/collision posing, Gaussian sampling, global frame
     # (so that changing how Gaussians are sampled never changes the plant's geometry)
     ss = np.random.SeedSequence([int(seed), 0x1EAF])
@@ -969,6 +968,33 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
         axes.append(Axis(pts, rr, "petiole"))
         axes[-1].leaf = leaf.label
 
+    return axes, leaves, habit, pairs, (rng, rng_frame, rng_scene)
+
+
+STEM_SAMPLES = 20000
+
+
+def stem_samples_rng(seed: int) -> np.random.Generator:
+    """The random stream ``GroundTruth.stem_samples`` are drawn with (``STEM_SAMPLES`` points by
+    :func:`tube_surface_samples` on :func:`plant_tubes`)."""
+    return np.random.default_rng([int(seed), 0x57E3])
+
+
+def plant_tubes(spec: PlantSpec, seed: int) -> list[Axis]:
+    """The tubes of the plant ``make_plant(spec, seed)`` builds (stem, branches, petioles:
+    centrelines and radii, in the frame the plant is built in: ``make_plant`` then rescales it to
+    a canonical height and maps it to the input frame), the exact surface its ``stem_samples``
+    are drawn on: open tubes, no end caps.
+    A petiole starts inside its parent, 0.8 of the parent's radius from its axis."""
+    return _structure(spec, seed)[0]
+
+
+def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
+    """Generate one plant: a GaussianCloud (input frame, shuffled file order) and its GroundTruth.
+
+    Deterministic: the same (spec, seed) gives bit-identical arrays.
+    """
+    axes, leaves, habit, pairs, (rng, rng_frame, rng_scene) = _structure(spec, seed)
     L = len(leaves)
     n_total = int(spec.gaussians)
     n_float = int(round(spec.floaters * n_total))
@@ -1137,7 +1163,7 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
         overlap_gaps=np.array([_min_dist(leaves[b - 1].world(), cKDTree(leaves[a - 1].world())) * sg * k
                                for a, b, _ in pairs], np.float64),
         canonical_to_input=M,
-        stem_samples=to_in(_tube_surface_samples(axes, 20000, np.random.default_rng([int(seed), 0x57E3]))),
+        stem_samples=to_in(tube_surface_samples(axes, STEM_SAMPLES, stem_samples_rng(seed))),
         spec=json.dumps({"spec": spec.to_dict(), "seed": int(seed), "habit": habit,
                          "canonical_height_m": height / sg, "leaves": info,
                          **({"scene": scene_info} if scene_info is not None else {})}),

@@ -11,8 +11,9 @@ import open3d as o3d
 from leaffit_usd.splats.frame import Frame
 from leaffit_usd.splats.ply import read_ply
 from samples import PLANTS_DIR, ensure_plants
-from samples.generate import (GroundTruth, PlantSpec, benchmark_suite, committed_plants,
-                              load_ground_truth, main, make_plant, preset, save_plant)
+from samples.generate import (STEM_SAMPLES, GroundTruth, PlantSpec, benchmark_suite,
+                              committed_plants, load_ground_truth, main, make_plant, plant_tubes,
+                              preset, save_plant, stem_samples_rng, tube_surface_samples)
 
 # tolerances, in one place
 MESH_DIST_REL = 0.02       # mean Gaussian->GT-mesh distance / leaf size
@@ -106,6 +107,24 @@ def test_ground_truth_consistent(small):
     cloud, gt = small
     _check_gt(cloud, gt, SMALL.leaves)
     assert len(gt.overlap_pairs) >= 2  # "all" builds one pair of each type when it can
+
+
+def test_plant_tubes_are_the_tubes_the_stem_samples_lie_on(small):
+    """``plant_tubes`` gives the plant's own tubes: the stem samples drawn on them with the
+    ground truth's stream are its ``stem_samples`` under one similarity (scale, rotation, shift),
+    and they are not another seed's."""
+    _, gt = small
+    tubes = plant_tubes(SMALL, 5)
+    assert sum(a.kind == "petiole" for a in tubes) == SMALL.leaves
+    X = tube_surface_samples(tubes, STEM_SAMPLES, stem_samples_rng(5))
+    A = np.linalg.lstsq(np.c_[X, np.ones(len(X))], gt.stem_samples, rcond=None)[0]
+    size = float(np.ptp(gt.stem_samples, axis=0).max())
+    assert np.abs(np.c_[X, np.ones(len(X))] @ A - gt.stem_samples).max() < 1e-9 * size
+    sv = np.linalg.svd(A[:3], compute_uv=False)
+    assert sv.max() - sv.min() < 1e-9 * sv.max()  # a similarity: no shear
+    other = tube_surface_samples(plant_tubes(SMALL, 6), STEM_SAMPLES, stem_samples_rng(6))
+    B = np.linalg.lstsq(np.c_[other, np.ones(len(other))], gt.stem_samples, rcond=None)[0]
+    assert np.abs(np.c_[other, np.ones(len(other))] @ B - gt.stem_samples).max() > 1e-3 * size
 
 
 def test_overlap_pairs_are_built_close():
