@@ -40,7 +40,11 @@ Pipeline (template local frame: petiole base at the origin, +X base -> apex, +Z 
    the blade is tilted in the view; gaps in a layer show the other one. Colour is
    un-premultiplied; alpha is 1 where the splat coverage exceeds ``alpha_threshold`` (interior
    pin-holes closed) with a one-texel anti-aliased rim, so the cut-out follows the leaf's own
-   silhouette; colours are then dilated outwards over the whole image (nearest covered texel) so
+   silhouette. Not on a leaf seen in a tilted sheet view (an arched strap leaf): its steep
+   parts are seen nearly edge-on, their splats leave gaps that are no edge of the leaf (lucky
+   bamboo: notches along both margins and a cut halfway across the blade), so alpha is the
+   sheet's own silhouette there, as the outline term of the fit is only used on a leaf seen
+   face-on. Colours are then dilated outwards over the whole image (nearest covered texel) so
    mip-maps never bleed background into the leaf. DC colours only: the cloud's SH rest
    coefficients are not rotated into the working frame.
 
@@ -135,7 +139,8 @@ def build_template_mesh(cloud_working, fits, params: MeshParams | None = None) -
         chart = planar_chart(P[:, :2], size, params.texture_margin, params.uv_layout)
     front, back, tinfo = bake_textures(cloud_working, fits, P, Fs, P[outer, :2], chart, size,
                                        params.alpha_threshold, params.min_coverage,
-                                       int(params.supersample), int(params.bake_gaussians), rot)
+                                       int(params.supersample), int(params.bake_gaussians), rot,
+                                       cut_out=bool(np.allclose(rot, np.eye(3))))
     timings["bake"] = time.perf_counter() - t0
 
     lod0 = two_sided(P, Fs, chart, rot)

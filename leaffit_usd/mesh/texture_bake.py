@@ -81,7 +81,7 @@ def _bake_set(means, cov, opac, view_colors: dict, off, cap: int, chart, pixel: 
 def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np.ndarray,
                   outline_xy: np.ndarray, chart: UVChart, size: int, thr: float = 0.5,
                   min_coverage: float = 0.6, supersample: int = 1, max_gaussians: int = 0,
-                  rotation=None):
+                  rotation=None, cut_out: bool = True):
     """Front and back RGBA float textures (H, W, 4) in [0, 1], straight alpha, row 0 = top.
 
     Colours are view-dependent: each texture evaluates the Gaussians' SH (working frame) for its
@@ -98,6 +98,9 @@ def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np
         is its mirror image (column c of the back = column W-1-c of the front)
     max_gaussians : at most this many Gaussians rendered, widened for the rest (:func:`bake_subset`)
     rotation : (3, 3) template -> sheet view (:mod:`.view_frame`), the frame of the sheet and chart
+    cut_out : alpha from the splat coverage (the leaf's own edge, serration kept); False: alpha =
+        the sheet's silhouette (``outline_xy``), for a leaf the view does not see face-on, whose
+        steep parts leave gaps between splats seen edge-on that are no edge of the leaf
     Returns (front, back, info) with coverage figures and the fallback used, if any.
     """
     from leaffit_usd.splats.render import render_orthographic_np
@@ -174,6 +177,9 @@ def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np
                     "back", 100 * cf)
         front = back_reg.copy()
     info["texture_fallback"] = fallback
+    info["alpha_cut_out"] = bool(cut_out and fallback != "inpainted")
+    if not cut_out and fallback != "inpainted":
+        front[..., 3] = back_reg[..., 3] = mask
     info["alpha_coverage_front"] = float((front[..., 3] > thr).mean())
     info["alpha_coverage_back"] = float((back_reg[..., 3] > thr).mean())
     return front, back_reg[:, ::-1].copy(), info

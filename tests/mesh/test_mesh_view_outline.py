@@ -78,6 +78,24 @@ def test_edge_on_strap_gets_a_whole_sheet_and_a_full_texture(strap):
            (np.asarray(m.normals[:S]) @ [0.0, 1.0, 0.0]).mean() > 0.5
 
 
+def test_only_a_leaf_seen_face_on_gets_the_splat_cut_out(strap, leaf_mesh):
+    """A strap seen in a tilted view has steep parts whose splats, seen nearly edge-on, leave
+    gaps that are no edge of the leaf: its alpha is the sheet's silhouette, opaque inside and
+    nothing outside (no anti-aliased cut-out rim). A leaf seen face-on keeps the cut-out, with
+    its rim."""
+    cloud, fits = strap
+    m = build_template_mesh(cloud, fits, MeshParams(**P))
+    assert m.report["sheet_view_tilt_deg"] > 80 and m.report["alpha_cut_out"] is False
+    for tex in (m.front_texture, m.back_texture):
+        a = np.asarray(tex)[..., 3]
+        assert set(np.unique(a).tolist()) <= {0, 255}
+        assert (a == 255).mean() > 0.7
+    assert np.array_equal(np.asarray(m.front_texture)[..., 3], np.asarray(m.back_texture)[:, ::-1, 3])
+    assert leaf_mesh.report["alpha_cut_out"] is True
+    rim = np.asarray(leaf_mesh.front_texture)[..., 3]
+    assert ((rim > 0) & (rim < 255)).any()
+
+
 def test_outline_reaches_the_splat_silhouette():
     """The centres stop short of the edge: the sheet through them is smaller than what the
     splats show; the grown outline covers the splats' alpha > 0.5 silhouette, reaching a little
