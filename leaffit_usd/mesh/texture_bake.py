@@ -78,6 +78,25 @@ def _bake_set(means, cov, opac, view_colors: dict, off, cap: int, chart, pixel: 
             info)
 
 
+def _coverage_fallback(front, back_reg, cf: float, cb: float, mask, thr: float, min_coverage: float):
+    """(front, back, fallback name or None): a side whose splats cover less than
+    ``min_coverage`` of the sheet's silhouette takes the other side's texture; both: colours
+    inpainted over the silhouette. Each with a warning."""
+    if cf < min_coverage and cb < min_coverage:
+        log.warning("mesh: the template's splats cover only %.0f%% (front) / %.0f%% (back) of the "
+                    "leaf; textures are inpainted over the mesh silhouette", 100 * cf, 100 * cb)
+        return inpainted(front, mask, thr), inpainted(back_reg, mask, thr), "inpainted"
+    if cb < min_coverage:
+        log.warning("mesh: the leaf's back is covered only %.0f%%; the back texture reuses the "
+                    "front", 100 * cb)
+        return front, front.copy(), "back_from_front"
+    if cf < min_coverage:
+        log.warning("mesh: the leaf's front is covered only %.0f%%; the front texture reuses the "
+                    "back", 100 * cf)
+        return back_reg.copy(), back_reg, "front_from_back"
+    return front, back_reg, None
+
+
 def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np.ndarray,
                   outline_xy: np.ndarray, chart: UVChart, size: int, thr: float = 0.5,
                   min_coverage: float = 0.6, supersample: int = 1, max_gaussians: int = 0,
@@ -160,22 +179,7 @@ def bake_textures(cloud_working, fits, sheet_points: np.ndarray, sheet_faces: np
     info["one_layer_sides"] = one_layer
     info["bake_seconds"] = time.perf_counter() - t0
     info["coverage_front"], info["coverage_back"] = cf, cb
-    fallback = None
-    if cf < min_coverage and cb < min_coverage:
-        fallback = "inpainted"
-        log.warning("mesh: the template's splats cover only %.0f%% (front) / %.0f%% (back) of the "
-                    "leaf; textures are inpainted over the mesh silhouette", 100 * cf, 100 * cb)
-        front, back_reg = inpainted(front, mask, thr), inpainted(back_reg, mask, thr)
-    elif cb < min_coverage:
-        fallback = "back_from_front"
-        log.warning("mesh: the leaf's back is covered only %.0f%%; the back texture reuses the "
-                    "front", 100 * cb)
-        back_reg = front.copy()
-    elif cf < min_coverage:
-        fallback = "front_from_back"
-        log.warning("mesh: the leaf's front is covered only %.0f%%; the front texture reuses the "
-                    "back", 100 * cf)
-        front = back_reg.copy()
+    front, back_reg, fallback = _coverage_fallback(front, back_reg, cf, cb, mask, thr, min_coverage)
     info["texture_fallback"] = fallback
     info["alpha_cut_out"] = bool(cut_out and fallback != "inpainted")
     if not cut_out and fallback != "inpainted":

@@ -6,6 +6,7 @@ import pytest
 
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.mesh import stem as M
+from leaffit_usd.mesh.stem import coverage as CO, level_sets as LS, radii as RA, skeleton as SK, tubes as TU
 from leaffit_usd.mesh.stem import StemParams, build_stem, estimate_radii, stem_edges
 from samples.synthetic.mesh import BRANCH_RGB, STEM_RGB, synthetic_stem_plant
 from leaffit_usd.segment.result import Segmentation
@@ -146,14 +147,14 @@ def test_leonardo_regulariser():
     weight enforces parent = sum of children at the junction."""
     pos = np.array([[0, 0, 0], [0, 0, 0.1], [0, 0, 0.2], [0.1, 0, 0.2], [0, 0, 0.3], [0.2, 0, 0.3]], float)
     parent = np.array([-1, 0, 1, 2, 2, 3])
-    sk = M.Skeleton(pos=pos, parent=parent, count=np.full(6, 10), members=np.zeros(0, np.int64),
+    sk = SK.Skeleton(pos=pos, parent=parent, count=np.full(6, 10), members=np.zeros(0, np.int64),
                     member_node=np.zeros(0, np.int64))
     obs = np.array([4.0, 4.0, 4.0, 1.0, 1.0, 1.0]) * 1e-4   # parent 4 != 1 + 1
     w = np.ones(6)
     prior = np.full(6, 1e-4)
-    a0 = M.solve_areas(sk, obs, w, prior, StemParams(leonardo_weight=0.0, smooth_weight=0.0))
+    a0 = RA.solve_areas(sk, obs, w, prior, StemParams(leonardo_weight=0.0, smooth_weight=0.0))
     assert np.allclose(a0, obs, rtol=1e-2)
-    a1 = M.solve_areas(sk, obs, w, prior, StemParams(leonardo_weight=1e6))
+    a1 = RA.solve_areas(sk, obs, w, prior, StemParams(leonardo_weight=1e6))
     assert a1[2] == pytest.approx(a1[3] + a1[4], rel=1e-3)
     assert 2e-4 < a1[2] < 4e-4  # a compromise between the data, not the prior
 
@@ -290,8 +291,10 @@ def test_thin_petiole_on_a_thick_cane_is_not_lost(monkeypatch):
     st = build_stem(seg, pts, None, StemParams())
     assert st.info["tubes"] >= 2
     assert np.linalg.norm(st.points - pet[-1], axis=1).min() < 0.007
-    # without the missed-tube pass the petiole's end is a cane's radius away from the mesh
-    monkeypatch.setattr(M, "_missed_tubes", lambda sk, *a, **k: sk)
+    # without the missed-tube pass (in the skeleton and in the coverage pass) the petiole's end
+    # is a cane's radius away from the mesh
+    for module in (LS, CO):
+        monkeypatch.setattr(module, "missed_tubes", lambda sk, *a, **k: sk)
     st0 = build_stem(seg, pts, None, StemParams())
     assert np.linalg.norm(st0.points - pet[-1], axis=1).min() > 0.01
 
@@ -331,7 +334,7 @@ def test_sparse_tube_has_no_spurious_forks():
 
 def _cane_skeleton_and_tubes():
     seg, pts, pet = _cane_with_petiole()
-    sk = M.gaussian_skeleton(pts, seg.labels, seg.root_index, StemParams())
+    sk = LS.gaussian_skeleton(pts, seg.labels, seg.root_index, StemParams())
     tubes, _, _ = M._skeleton_tubes(sk, "gaussians", seg, pts, None, StemParams())
     return seg, pts, pet, sk, tubes
 
@@ -345,11 +348,11 @@ def test_coverage_pass_adds_a_tube_for_gaussians_the_tubes_miss():
     far = [i for i, tb in enumerate(tubes) if np.linalg.norm(tb.axis - pet[-1], axis=1).min() < 0.01]
     assert far, "the petiole has a tube of its own"
     missing = [tb for i, tb in enumerate(tubes) if i not in far]
-    assert M._tube_residual(missing, pet[-1:]).min() > 0.01  # the petiole's end is off the tubes
-    out = M._cover_missed(sk, missing, pts, StemParams())
+    assert TU.tube_residual(missing, pet[-1:]).min() > 0.01  # the petiole's end is off the tubes
+    out = CO.cover_missed(sk, missing, pts, StemParams())
     assert out is not sk and len(out.pos) > len(sk.pos)
     again, _, _ = M._skeleton_tubes(out, "gaussians", seg, pts, None, StemParams())
-    assert M._tube_residual(again, pet[-1:]).min() < 0.004
+    assert TU.tube_residual(again, pet[-1:]).min() < 0.004
 
 
 def test_coverage_pass_drops_chains_inside_a_tube(monkeypatch):
@@ -359,7 +362,7 @@ def test_coverage_pass_drops_chains_inside_a_tube(monkeypatch):
     seg, pts, pet, sk, tubes = _cane_skeleton_and_tubes()
     cane = tubes[0]
     stretch = (cane.axis[:, 2] > 0.1) & (cane.axis[:, 2] < 0.2)
-    tubes[0] = M._Tube(axis=cane.axis, radii=np.where(stretch, 0.5, 1.0) * cane.radii, cap_start=True,
+    tubes[0] = TU.Tube(axis=cane.axis, radii=np.where(stretch, 0.5, 1.0) * cane.radii, cap_start=True,
                        parent_tube=-1, attach=cane.attach, stream=cane.stream, own=cane.own)
 
     def on_axis(s):
@@ -368,23 +371,23 @@ def test_coverage_pass_drops_chains_inside_a_tube(monkeypatch):
     def in_stretch(s):
         return int(((s.pos[:, 2] > 0.1) & (s.pos[:, 2] < 0.2)).sum())
 
-    out = M._cover_missed(sk, tubes, pts, StemParams())
+    out = CO.cover_missed(sk, tubes, pts, StemParams())
     assert on_axis(out) == on_axis(sk)
     # at most a node or two in the stretch (a patch too small for a circle fit stays on the
     # wall); elsewhere the pass may add nodes (this fixture's petiole is swept at the wrong
     # angle, its Gaussians outside it are covered too)
     assert in_stretch(out) <= in_stretch(sk) + 2
     # without the check, a second cane runs inside the first
-    monkeypatch.setattr(M, "_drop_subtrees", lambda s, drop: s)
-    assert on_axis(M._cover_missed(sk, tubes, pts, StemParams())) >= on_axis(sk) + 5
+    monkeypatch.setattr(CO, "drop_subtrees", lambda s, drop: s)
+    assert on_axis(CO.cover_missed(sk, tubes, pts, StemParams())) >= on_axis(sk) + 5
 
 
 def test_stem_build_runs_the_coverage_pass(monkeypatch):
     """build_stem sweeps the tubes again when the coverage pass adds chains."""
     seg, pts, pet = _cane_with_petiole()
     calls = []
-    real = M._cover_missed
-    monkeypatch.setattr(M, "_cover_missed", lambda *a, **k: calls.append(1) or real(*a, **k))
+    real = CO.cover_missed
+    monkeypatch.setattr(M, "cover_missed", lambda *a, **k: calls.append(1) or real(*a, **k))
     build_stem(seg, pts, None, StemParams())
     assert calls == [1]
 
@@ -394,12 +397,12 @@ def test_coverage_hysteresis_takes_a_miss_whole():
     all of it down to the weak threshold; a group only weakly off (the tubes' noise) does not."""
     x = np.r_[np.linspace(0, 0.1, 21), np.linspace(0.3, 0.4, 21)]
     pts = np.stack([x, np.zeros_like(x), np.zeros_like(x)], 1)
-    G, _ = M._neighbour_graph(pts, 4)
-    ctx = M._GraphContext(idx=np.arange(len(pts)), G=G.tocsr(), g=x.copy(), w_thin=0.01)
+    G, _ = LS._neighbour_graph(pts, 4)
+    ctx = LS.GraphContext(idx=np.arange(len(pts)), G=G.tocsr(), g=x.copy(), w_thin=0.01)
     weak = np.ones(len(pts), bool)
     strong = np.zeros(len(pts), bool)
     strong[20] = True  # the far end of the first group only
-    out = M._hysteresis(ctx, np.arange(len(pts)), weak, strong)
+    out = CO._hysteresis(ctx, np.arange(len(pts)), weak, strong)
     assert out[:21].all() and not out[21:].any()
 
 
@@ -413,18 +416,18 @@ def test_coverage_pass_takes_a_tube_end_too_short_for_level_sets():
     end = np.stack([0.004 * np.cos(a), 0.004 * np.sin(a), np.linspace(0.252, 0.27, 6)], 1)
     pts = np.concatenate([body, end])
     seg = Segmentation(labels=np.zeros(len(pts), np.int32), root_index=int(np.argmin(pts[:, 2])))
-    sk = M.gaussian_skeleton(pts, seg.labels, seg.root_index, StemParams())
+    sk = LS.gaussian_skeleton(pts, seg.labels, seg.root_index, StemParams())
     tubes, _, _ = M._skeleton_tubes(sk, "gaussians", seg, pts, None, StemParams())
     # the swept tube stops short of the last Gaussians (as smoothing / pruning can leave it)
-    cut = [M._Tube(axis=tb.axis[tb.axis[:, 2] <= 0.248], radii=tb.radii[tb.axis[:, 2] <= 0.248],
+    cut = [TU.Tube(axis=tb.axis[tb.axis[:, 2] <= 0.248], radii=tb.radii[tb.axis[:, 2] <= 0.248],
                    cap_start=tb.cap_start, parent_tube=tb.parent_tube, attach=tb.attach,
                    stream=tb.stream, own=tb.own) for tb in tubes]
-    assert M._tube_residual(cut, end).max() > 0.015
-    out = M._cover_missed(sk, cut, pts, StemParams())
+    assert TU.tube_residual(cut, end).max() > 0.015
+    out = CO.cover_missed(sk, cut, pts, StemParams())
     assert out is not sk and len(out.pos) == len(sk.pos) + 1
     assert abs(out.pos[-1, 2] - end[:, 2].mean()) < 0.005
     again, _, _ = M._skeleton_tubes(out, "gaussians", seg, pts, None, StemParams())
-    assert M._tube_residual(again, end).max() < 0.004
+    assert TU.tube_residual(again, end).max() < 0.004
 
 
 def _thin_branch_on_sparse_stem(seed=4):
@@ -457,7 +460,7 @@ def test_branch_leaves_where_its_direction_meets_the_parent(monkeypatch):
 
     st = build_stem(seg, pts, None, StemParams())
     assert st.info["tubes"] == 2 and off_near_fork(st) < 0.004
-    monkeypatch.setattr(M, "continue_branches", lambda sk, w, **k: sk)
+    monkeypatch.setattr(LS, "continue_branches", lambda sk, w, **k: sk)
     assert off_near_fork(build_stem(seg, pts, None, StemParams())) > 0.008
 
 
@@ -473,9 +476,9 @@ def test_continue_branches_moves_only_a_diverging_branch():
     pos = np.concatenate([parent_pos, branch, miss])
     par = np.r_[-1, np.arange(10), 6, 11 + np.arange(6), 6, 18 + np.arange(6)]
     spread = np.r_[np.full(11, 0.01), np.full(14, 0.003)]
-    sk = M.Skeleton(pos=pos, parent=par.astype(np.int64), count=np.full(len(pos), 10, np.int64),
+    sk = SK.Skeleton(pos=pos, parent=par.astype(np.int64), count=np.full(len(pos), 10, np.int64),
                     members=np.zeros(0, np.int64), member_node=np.zeros(0, np.int64), spread=spread)
-    out = M.continue_branches(sk, 0.01)
+    out = SK.continue_branches(sk, 0.01)
     first = int(np.flatnonzero(np.all(np.isclose(out.pos, branch[0]), axis=1))[0])
     assert np.allclose(out.pos[out.parent[first]], [0, 0, 0.03])
     other = int(np.flatnonzero(np.all(np.isclose(out.pos, miss[0]), axis=1))[0])
@@ -494,16 +497,16 @@ def test_axis_ignores_nodes_that_hold_several_tubes(monkeypatch):
     run = slice(8, 13)
     pos[run, 0] = 0.01
     spread[run] = 0.012
-    sk = M.Skeleton(pos=pos, parent=np.r_[-1, np.arange(19)].astype(np.int64),
+    sk = SK.Skeleton(pos=pos, parent=np.r_[-1, np.arange(19)].astype(np.int64),
                     count=np.full(20, 20, np.int64), members=np.zeros(0, np.int64),
                     member_node=np.zeros(0, np.int64), spread=spread)
-    assert M._merged_nodes(spread, False).tolist() == [False] * 8 + [True] * 5 + [False] * 7
-    tb = M._tubes(sk, np.full(20, 0.005 ** 2), np.zeros((0, 3)), StemParams())[0]
+    assert TU._merged_nodes(spread, False).tolist() == [False] * 8 + [True] * 5 + [False] * 7
+    tb = TU.stream_tubes(sk, np.full(20, 0.005 ** 2), np.zeros((0, 3)), StemParams())[0]
     assert np.abs(tb.axis[:, 0]).max() < 0.001
     # a stream of single-tube nodes is left alone
-    assert not M._merged_nodes(np.full(20, 0.005), False).any()
-    monkeypatch.setattr(M, "_merged_nodes", lambda s, b: np.zeros(len(s), bool))
-    tb0 = M._tubes(sk, np.full(20, 0.005 ** 2), np.zeros((0, 3)), StemParams())[0]
+    assert not TU._merged_nodes(np.full(20, 0.005), False).any()
+    monkeypatch.setattr(TU, "_merged_nodes", lambda s, b: np.zeros(len(s), bool))
+    tb0 = TU.stream_tubes(sk, np.full(20, 0.005 ** 2), np.zeros((0, 3)), StemParams())[0]
     assert np.abs(tb0.axis[:, 0]).max() > 0.005
 
 
@@ -527,7 +530,7 @@ def _pothos_stem(monkeypatch=None, keep_redundant=False, isolate=False):
     labels[labels < 0] = 0  # the benchmark's reading (pipeline.load_labels): noise is unassigned
     seg = Segmentation(labels=labels, root_index=int(ch.root_index))
     if keep_redundant:
-        monkeypatch.setattr(M, "_drop_redundant", lambda tubes, *a, **k: tubes)
+        monkeypatch.setattr(M, "drop_redundant", lambda tubes, *a, **k: tubes)
     st = build_stem(seg, np.asarray(cw.means, np.float64), None, StemParams())
     true = ch.frame.to_working(np.asarray(gt.stem_samples, np.float64))
     return st, true
@@ -570,9 +573,9 @@ def test_sparse_branch_node_is_not_fitted_to_its_junction(monkeypatch):
     the stem's surface stood 0.026 from every true tube (HD 0.26, x10). A node with fewer than 3
     Gaussians of its own keeps its centroid next to a junction (the farthest point then lies at
     the upper fork, :func:`test_redundant_tail_is_cut_on_pothos`)."""
-    monkeypatch.setattr(M, "_trim_redundant_tails", lambda tubes, *a, **k: tubes)
+    monkeypatch.setattr(M, "trim_redundant_tails", lambda tubes, *a, **k: tubes)
     st, true = _pothos_stem(isolate=True)
-    monkeypatch.setattr(M, "_FEW_OWN", 0)
+    monkeypatch.setattr(SK, "_FEW_OWN", 0)
     old, _ = _pothos_stem(isolate=True)
     assert _worst_mesh_point(old, true) > 0.025
     assert _worst_mesh_point(st, true) < 0.021
@@ -587,7 +590,7 @@ def test_redundant_tail_is_cut_on_pothos(monkeypatch):
     surface stands 0.02 off the data) and cut: the stem's farthest point from the true tubes
     goes from 0.020 (that tail) to under 0.016."""
     st, true = _pothos_stem(isolate=True)
-    monkeypatch.setattr(M, "_trim_redundant_tails", lambda tubes, *a, **k: tubes)
+    monkeypatch.setattr(M, "trim_redundant_tails", lambda tubes, *a, **k: tubes)
     old, _ = _pothos_stem(isolate=True)
     assert st.info["tubes"] == old.info["tubes"]
     assert _worst_mesh_point(old, true) > 0.019
@@ -607,7 +610,7 @@ def test_redundant_tube_needs_both_no_gaussians_of_its_own_and_surface_off_the_d
         return np.linspace(a, b, int(np.ceil(np.linalg.norm(b - a) / 0.002)) + 1)
 
     def tube(axis, r, parent, own):
-        return M._Tube(axis=axis, radii=np.full(len(axis), r), cap_start=parent < 0, parent_tube=parent,
+        return TU.Tube(axis=axis, radii=np.full(len(axis), r), cap_start=parent < 0, parent_tube=parent,
                        attach=axis[0], own=own)
 
     cane_axis = line([0, 0, 0], [0, 0, 0.8])
@@ -621,12 +624,12 @@ def test_redundant_tube_needs_both_no_gaussians_of_its_own_and_surface_off_the_d
     in_own = cane_g[(cane_g[:, 0] > 0.008) & (cane_g[:, 2] > 0.1) & (cane_g[:, 2] < 0.13)]
     tubes = [tube(cane_axis, 0.012, -1, cane_g), tube(br_axis, 0.004, 0, br_g),
              tube(arc_axis, 0.012, 0, arc_own), tube(in_axis, 0.003, 0, in_own)]
-    tau = M._cover_tau(tubes[:2], q, 0.01)
-    assert M._redundant_tubes(tubes, q, tau, 12) == [2]
-    kept = M._drop_redundant(list(tubes), q, tau, 12)
+    tau = CO.cover_tau(tubes[:2], q, 0.01)
+    assert CO._redundant_tubes(tubes, q, tau, 12) == [2]
+    kept = CO.drop_redundant(list(tubes), q, tau, 12)
     assert len(kept) == 3 and all(tb.parent_tube in (-1, 0) for tb in kept)
     # the rule needs both: with the far arc's surface on the data it would stay
-    assert M._redundant_tubes(tubes[:2] + [tube(arc_axis, 0.002, 0, arc_own)], q, tau, 12) == []
+    assert CO._redundant_tubes(tubes[:2] + [tube(arc_axis, 0.002, 0, arc_own)], q, tau, 12) == []
 
 
 def test_unassigned_gaussians_the_segmentation_never_reached_get_no_tube():
