@@ -178,7 +178,7 @@ def main(argv=None) -> int:
         r["set"] = tag
         rows.append(r)
         print(f"{tag:7s} {r['plant']:17s} {r['stem_corr']:7.4f} {r['floor']:7.4f} {r['stem_comp']:7.4f} "
-              f"{r['stem_hd']:7.4f} {r['perfect']['hd'] if r['perfect'] else float('nan'):8.4f} "
+              f"{r['stem_hd']:7.4f} {format(r['perfect']['hd'], '8.4f') if r['perfect'] else '-':>8s} "
               f"{r['tubes']:5d}  {'/'.join(map(str, r['vertices'])):17s} {r['seconds']:.1f}", flush=True)
     for tag in sorted({r["set"] for r in rows}):
         rs = [r for r in rows if r["set"] == tag]
