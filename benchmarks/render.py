@@ -34,9 +34,9 @@ leaf surface (the generator's leaf meshes) through the same sampling scores ``GT
 the input's leaf Gaussians (rubber_tree 0.95: the input's off-surface noise and fuzz, which a
 surface does not have), beside the asset's own leaves (``leaf IoU``). The same for the whole
 silhouette is ``ceil min`` (:func:`true_surface_splats`: the true leaf surface's splats and the
-input's stem Gaussians moved onto the true tubes): what a perfect asset scores in its worst view. Its limit: a part of the
-asset far from every input Gaussian takes the density of the nearest ones (not zero), so a
-spurious part still shows.
+input's stem Gaussians moved onto the true tubes): what a perfect asset scores in its worst
+view. Its limit: a part of the asset far from every input Gaussian takes the density of the
+nearest ones (not zero), so a spurious part still shows.
 
 Writes ``benchmarks/results/render.json`` (or ``--out``) and, with ``--pictures DIR``, input |
 asset (rasterised) side-by-side PNGs. ``--compare BEFORE.json`` prints before | after per plant;
@@ -511,8 +511,7 @@ MIN_KEYS = ("iou_min", "iou_raster_min", "iou_ceiling_min")
 LEGEND = ("(IoU: input 3DGS vs the asset re-expressed as splats of the input's footprint, alpha > "
           "0.5, worst / mean of 8 views; ceil min: the same for the true surface (the true leaf "
           "surface's splats, the input's stem Gaussians moved onto the true tubes), what a perfect "
-          "asset scores; raster min: vs the asset "
-          "drawn as a surface; leaf IoU / GT "
+          "asset scores; raster min: vs the asset drawn as a surface; leaf IoU / GT "
           "leaf: leaves alone, the asset's / the true leaf surface's splats vs the input's leaf "
           "Gaussians, mean of the views; PSNR/SSIM inside the union of both silhouettes; surface "
           "errors x10 of plant height; stem Corr = mean distance asset stem -> true tube surface; "

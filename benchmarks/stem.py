@@ -78,8 +78,10 @@ def perfect_stem(name: str, n: int = 400_000) -> dict | None:
     ``evaluate_stem`` against the same GT samples. Our sample plants only (the generator's
     tubes); None for others.
 
-    Returns x10 of plant height: ``hd`` (its HD), ``hidden`` (the GT samples inside another
-    tube: the farthest from the visible surface), ``tip`` (the largest petiole end radius)."""
+    Returns x10 of plant height: ``hd`` (its HD), ``corr`` (its mean distance to the GT
+    samples), ``hidden`` (of the GT samples inside another tube, the farthest from the visible
+    surface), ``tip`` (the largest petiole end radius); and ``hidden_share``, the fraction of the
+    GT samples inside another tube."""
     from scipy.spatial import cKDTree
 
     from samples.generate import (STEM_SAMPLES, committed_plants, make_plant, plant_tubes,
