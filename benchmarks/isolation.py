@@ -49,6 +49,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 SHARED = ROOT.parent / "shared" / "plants"
 
+from benchmarks.machine import machine_info  # noqa: E402
 from leaffit_usd.isolate import CLASS_NAMES  # noqa: E402
 from leaffit_usd.pipeline import auto_segment, frame_from_isolation, isolate_stage  # noqa: E402
 from leaffit_usd.segment.auto import SegmentParams  # noqa: E402
@@ -335,7 +336,8 @@ def main(argv=None) -> int:
         print(st, json.dumps(summary[st]))
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
     Path(a.out).write_text(json.dumps({"summary": summary, "plants": rows,
-                                       "evaluator": "eval_seg.py" if EVAL else "leaffit_usd.metrics"},
+                                       "evaluator": "eval_seg.py" if EVAL else "leaffit_usd.metrics",
+                                       "machine": machine_info()},
                                       indent=1) + "\n")
     return 0
 

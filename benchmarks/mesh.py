@@ -192,7 +192,10 @@ def main(argv=None) -> int:
         print(s)
     RESULTS.mkdir(parents=True, exist_ok=True)
     out = RESULTS / "mesh.json"
-    out.write_text(json.dumps(dict(texture_size=args.size, templates=rows, stems=stems), indent=1))
+    from benchmarks.machine import machine_info
+
+    out.write_text(json.dumps(dict(texture_size=args.size, templates=rows, stems=stems,
+                                   machine=machine_info()), indent=1))
     print(f"wrote {out}")
     return 0
 

@@ -571,9 +571,11 @@ def _save(args, rows: list[dict]) -> None:
     from leaffit_usd.io_util import atomic_write_bytes
 
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    from benchmarks.machine import machine_info
+
     atomic_write_bytes(args.out, (json.dumps(dict(rows=rows, size=args.size, views=N_VIEWS,
-                                                  elevation=ELEVATION,
-                                                  load_average=os.getloadavg()[0]), indent=1) + "\n").encode())
+                                                  elevation=ELEVATION, machine=machine_info()),
+                                             indent=1) + "\n").encode())
 
 
 def main(argv=None) -> int:

@@ -250,8 +250,10 @@ def main(argv=None) -> int:
     if len(a.seeds) > 1:
         _print_means(rows, a.sizes, modes)
     Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+    from benchmarks.machine import machine_info
+
     Path(a.out).write_text(json.dumps({"plant": "samples rubber_tree" if a.samples else "make_plants paper8 #0",
-                                       "rows": rows}, indent=1) + "\n")
+                                       "rows": rows, "machine": machine_info()}, indent=1) + "\n")
     return 0
 
 

@@ -102,7 +102,10 @@ def main(argv=None):
                       f"(max {summary[-1]['wall_max']:.2f}), CPU {cpu:6.2f} s", flush=True)
     load = os.getloadavg()[0]
     print(f"{os.cpu_count()} cores, load average {load:.1f} at the end")
-    Path(args.out).write_text(json.dumps({"rows": rows, "summary": summary, "load_average": load}, indent=1))
+    from benchmarks.machine import machine_info
+
+    Path(args.out).write_text(json.dumps({"rows": rows, "summary": summary, "load_average": load,
+                                          "machine": machine_info()}, indent=1))
 
 
 if __name__ == "__main__":

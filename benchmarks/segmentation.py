@@ -174,6 +174,9 @@ def main(argv=None):
         result["load_average"] = load
     if args.external is not None:
         result["external"] = run_external(args.external or ["paper8", "hard4", "heliosdev8"], args.seeds)
+    from benchmarks.machine import machine_info
+
+    result["machine"] = machine_info()
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))

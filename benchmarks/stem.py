@@ -197,10 +197,12 @@ def main(argv=None) -> int:
             print(f"  perfect {r['plant']}: HD {p['hd']:.4f} (GT samples inside another tube, "
                   f"{100 * p['hidden_share']:.1f} %: up to {p['hidden']:.4f} from the visible surface; "
                   f"largest petiole end radius {p['tip']:.4f})")
+    from benchmarks.machine import machine_info
     from leaffit_usd.io_util import atomic_write_bytes
 
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_bytes(args.out, (json.dumps(dict(rows=rows), indent=1) + "\n").encode())
+    atomic_write_bytes(args.out, (json.dumps(dict(rows=rows, machine=machine_info()), indent=1)
+                                  + "\n").encode())
     return 0
 
 

@@ -14,6 +14,9 @@ setting is restored after), so every reduction has one fixed order. The parallel
 is small (the fit's per-step tensors are small; measured in ``benchmarks/batch.py``' notes) and
 ``leaffit-usd batch`` gets it back by converting several captures at once.
 Randomness is seeded explicitly where it exists (``FitParams.seed``, ``SegmentParams.seed``).
+The bytes are those of one machine and install: torch and OpenBLAS choose kernels by the CPU's
+vector instructions, so another CPU (or other numpy / scipy releases) can differ in the last bits
+(``benchmarks/machine.py`` records both with every benchmark result).
 
 The same block also runs numpy's BLAS (OpenBLAS) on one thread (``threadpoolctl``). Not for the
 bytes (OpenBLAS splits a product over its output, not over the summed dimension) but for time:
