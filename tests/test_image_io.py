@@ -55,3 +55,34 @@ def test_errors_are_image_errors_and_leave_nothing(tmp_path):
     with pytest.raises(ImageError, match="shape"):
         write_image(tmp_path / "x.png", np.zeros((4, 4)))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.png"]
+
+
+def _png_row_filters(path) -> set:
+    """The filter byte of every row of an 8-bit RGBA PNG (the IDAT stream, inflated)."""
+    import struct
+    import zlib
+
+    data = path.read_bytes()
+    pos, idat, width = 8, b"", None
+    while pos < len(data):
+        n, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        body = data[pos + 8:pos + 8 + n]
+        if kind == b"IHDR":
+            width = struct.unpack(">I", body[:4])[0]
+        elif kind == b"IDAT":
+            idat += body
+        pos += 12 + n
+    raw = zlib.decompress(idat)
+    stride = 1 + 4 * width
+    return {raw[i] for i in range(0, len(raw), stride)}
+
+
+def test_png_rows_use_the_up_filter(tmp_path):
+    # image_io writes PNG with libpng's "up" row filter (2 in the file) at zlib level 7: as small
+    # as level 9's adaptive filters on leaf textures, in a tenth of the time
+    rng = np.random.default_rng(0)
+    img = np.clip(np.cumsum(rng.integers(-3, 4, (64, 48, 4)), axis=0) + 128, 0, 255).astype(np.uint8)
+    p = tmp_path / "t.png"
+    write_image(p, img)
+    assert _png_row_filters(p) <= {0, 2} and 2 in _png_row_filters(p)
+    assert (read_image_u8(p) == img).all()
