@@ -31,34 +31,36 @@ import functools
 import threading
 
 _lock = threading.RLock()
-_depth = 0
+_depth = 0          # blocks inside deterministic_torch now, over all threads
+_saved = None       # (torch threads, threadpoolctl limits) from before the first of them
 
 
 @contextlib.contextmanager
 def deterministic_torch():
     """Run the block with one torch intra-op thread and one BLAS thread (both restored after;
-    re-entrant, thread-safe with respect to other users of this context manager)."""
+    re-entrant, and thread-safe: the settings are process-wide, so they are restored when the
+    last block still inside, in any thread, leaves, not when the first one to enter does)."""
     import torch
     from threadpoolctl import threadpool_limits
 
-    global _depth
+    global _depth, _saved
     with _lock:
-        outer = _depth == 0
-        if outer:
-            saved = torch.get_num_threads()
-            if saved != 1:
+        if _depth == 0:
+            _saved = (torch.get_num_threads(), threadpool_limits(limits=1, user_api="blas"))
+            if _saved[0] != 1:
                 torch.set_num_threads(1)
-            blas = threadpool_limits(limits=1, user_api="blas")
         _depth += 1
     try:
         yield
     finally:
         with _lock:
             _depth -= 1
-            if outer:
+            if _depth == 0:
+                threads, blas = _saved
+                _saved = None
                 blas.restore_original_limits()
-                if saved != 1:
-                    torch.set_num_threads(saved)
+                if threads != 1:
+                    torch.set_num_threads(threads)
 
 
 def deterministic(fn):

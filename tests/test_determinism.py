@@ -160,3 +160,39 @@ def test_blas_runs_single_threaded_inside_and_is_restored():
             assert set(inner) == {1}
             assert {d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"} == {1}
         assert [d["num_threads"] for d in threadpool_info() if d["user_api"] == "blas"] == before
+
+
+def test_threads_overlapping_in_the_block_keep_one_torch_thread_until_the_last_leaves():
+    """The setting is process-wide: a thread that entered first and leaves first must not give
+    the caller's thread count back while another thread is still inside (the texture bake
+    renders its layers on two threads)."""
+    import threading
+
+    first_in, second_in, first_out = threading.Event(), threading.Event(), threading.Event()
+    seen = []
+
+    def first():
+        with deterministic_torch():
+            first_in.set()
+            second_in.wait(5)
+        first_out.set()
+
+    def second():
+        first_in.wait(5)
+        with deterministic_torch():
+            second_in.set()
+            first_out.wait(5)
+            seen.append(torch.get_num_threads())     # the first thread has left by now
+
+    saved = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        ts = [threading.Thread(target=first), threading.Thread(target=second)]
+        for t in ts:
+            t.start()
+        for t in ts:
+            t.join(10)
+        assert seen == [1]
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(saved)
