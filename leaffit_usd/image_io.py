@@ -34,7 +34,8 @@ def linear_to_srgb(c: np.ndarray) -> np.ndarray:
     return np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1 / 2.4) - 0.055)
 
 
-def _format(path) -> str:
+def image_format(path) -> str:
+    """The image format a path's suffix names, lower case ('jpeg' -> 'jpg'; '' without one)."""
     ext = os.path.splitext(os.fspath(path))[1].lower().lstrip(".")
     return {"jpeg": "jpg"}.get(ext, ext)
 
@@ -66,7 +67,7 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     if px.shape[2] == 3:
         px = np.concatenate([px, np.ones_like(px[:, :, :1])], axis=2)
     px = px[:, :, :4]
-    if _format(path) == "exr":
+    if image_format(path) == "exr":
         px[..., :3] = linear_to_srgb(px[..., :3])
     return np.clip(px, 0.0, 1.0)
 
@@ -102,7 +103,7 @@ def write_image(path: str | os.PathLike, image: np.ndarray, max_size: int | None
     """
     import OpenImageIO as oiio
 
-    fmt = _format(path)
+    fmt = image_format(path)
     if fmt not in WRITE_FORMATS:
         raise ImageError(path, f"cannot write images of type {fmt or '(no suffix)'!r}; "
                                f"use {', '.join(WRITE_FORMATS)}")

@@ -9,6 +9,17 @@ import numpy as np
 from leaffit_usd.errors import ParameterError
 
 
+def check_image_output(option: str, path) -> None:
+    """``path``, a picture the command will write (``--preview``), must name a format
+    ``image_io.write_image`` writes. Checked before the work starts: a typo in the suffix costs
+    no run and leaves no output behind (ParameterError: exit 2, one line)."""
+    from leaffit_usd.image_io import WRITE_FORMATS, image_format
+
+    if image_format(path) not in WRITE_FORMATS:
+        raise ParameterError(option, "an image path ending in " + ", ".join("." + f for f in WRITE_FORMATS),
+                             str(path))
+
+
 def pos_int(text):
     """argparse type: an integer >= 0."""
     try:

@@ -65,6 +65,10 @@ def run(args) -> int:
         raise ParameterError("--classes", "a .npz path", args.classes)
     if args.report and not str(args.report).lower().endswith(".json"):
         raise ParameterError("--report", "a .json path", args.report)
+    if args.preview:
+        from leaffit_usd.commands._args import check_image_output
+
+        check_image_output("--preview", args.preview)
     if not Path(args.input).exists():
         raise InputFileError(args.input, "no such file")
     cloud = load_cloud(args.input, prim=args.prim)

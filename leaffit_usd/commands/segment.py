@@ -100,6 +100,8 @@ def run(args) -> int:
 
     if not str(args.output).lower().endswith(".npz"):
         raise ParameterError("-o/--output", "a .npz file", args.output)
+    if getattr(args, "preview", None):
+        _args.check_image_output("--preview", args.preview)
     params = params_from_args(args)
     t0 = time.perf_counter()
     cloud_in = load_cloud(args.input, prim=args.prim)

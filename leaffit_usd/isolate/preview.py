@@ -1,13 +1,12 @@
 """A picture of what isolation removed: three orthographic views (front, side, top) of the
 capture, up = the isolation's up (else the cloud's longest principal axis). Kept plant Gaussians
 in their own colour, removed ones by class: ground blue-grey, pot orange, soil brown, background
-violet, floater red. Plain numpy raster, written with OpenImageIO.
+violet, floater red. Plain numpy raster, written with ``image_io.write_image``.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from leaffit_usd.io_util import atomic_path
 from leaffit_usd.isolate.result import PLANT, Isolation
 
 CLASS_COLOURS = np.array([[0.0, 0.0, 0.0],      # plant: its own colour
@@ -58,15 +57,8 @@ def render_isolation(cloud, iso: Isolation, size: int = 480, max_points: int = 4
 
 
 def write_isolation_preview(path, cloud, iso: Isolation, size: int = 480) -> None:
-    """Render :func:`render_isolation` and write it (PNG, JPEG, ...) atomically."""
-    import OpenImageIO as oiio
+    """Render :func:`render_isolation` and write it atomically (``image_io.write_image``: PNG,
+    JPEG or EXR by the suffix; ImageError otherwise)."""
+    from leaffit_usd.image_io import write_image
 
-    data = (np.clip(render_isolation(cloud, iso, size), 0, 1) * 255 + 0.5).astype(np.uint8)
-    with atomic_path(path) as tmp:
-        out = oiio.ImageOutput.create(str(path))
-        if out is None:
-            raise OSError(f"{path}: OpenImageIO cannot write this format ({oiio.geterror()})")
-        if not out.open(str(tmp), oiio.ImageSpec(data.shape[1], data.shape[0], 3, oiio.UINT8)):
-            raise OSError(f"{path}: {out.geterror()}")
-        out.write_image(data)
-        out.close()
+    write_image(path, render_isolation(cloud, iso, size))

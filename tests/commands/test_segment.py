@@ -92,7 +92,8 @@ def test_root_by_point_and_params(ply, tmp_path):
 
 @pytest.mark.parametrize("extra", [["-o", "{tmp}/x.txt"], ["-o", "{tmp}/x.npz", "--root", "100,100,100"],
                                    ["-o", "{tmp}/x.npz", "--tau", "-1"],
-                                   ["-o", "{tmp}/x.npz", "--root-index", "999999"]])
+                                   ["-o", "{tmp}/x.npz", "--root-index", "999999"],
+                                   ["-o", "{tmp}/x.npz", "--preview", "{tmp}/x.xyz"]])
 def test_bad_usage_exits_2_and_writes_nothing(ply, tmp_path, extra, capsys):
     path, _, _ = ply
     args = ["segment", str(path), "--up", "+y"] + [e.format(tmp=tmp_path) for e in extra]

@@ -127,6 +127,10 @@ def test_isolate_command(tmp_path, capture):
     # --keep-scene keeps everything
     assert main(["isolate", "-q", str(src), "-o", str(out), "--keep-scene"]) == 0
     assert len(read_ply(out)) == len(cloud)
+    # a preview in no image format: a user error before any work, no output written
+    fresh = tmp_path / "fresh.ply"
+    assert main(["isolate", "-q", str(src), "-o", str(fresh), "--preview", str(tmp_path / "i.xyz")]) == 2
+    assert not fresh.exists() and not (tmp_path / "i.xyz").exists()
 
 
 def test_isolate_command_bad_crop_exits_2(tmp_path, capsys):
