@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import sys
 import time
@@ -31,6 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from benchmarks.machine import machine_info  # noqa: E402
 from leaffit_usd.runtime.evaluator import LeafEvaluator, evaluate, instance_matrices  # noqa: E402
 from samples.synthetic.runtime import synthetic_asset  # noqa: E402
 
@@ -119,10 +119,9 @@ def main(argv=None) -> int:
     result = {
         "benchmark": "evaluator", "leaves": L, "vertices_per_leaf": V, "K": K,
         "target_ms": TARGET_MS, "target_row": target_row, "pass": bool(passed),
-        "rows": rows, "cpu_count": os.cpu_count(), "blas": blas_info(),
+        "rows": rows, "blas": blas_info(),
         "loadavg_before": load_before, "loadavg_after": load_after,
-        "python": platform.python_version(), "numpy": np.__version__,
-        "machine": platform.machine(), "gl_error": gl_error,
+        "machine": machine_info(), "gl_error": gl_error,
         "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
     out = Path(args.out)

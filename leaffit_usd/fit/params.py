@@ -13,6 +13,11 @@ from leaffit_usd.fit.mls import DEFAULT_REG, DEFAULT_SIGMA
 #: ``convert --paper-fit``): its absolute kernel width, Adam only.
 PAPER_FIT = {"sigma": DEFAULT_SIGMA, "refine": 0}
 
+#: a leaf is seen face-on along its frame's +Z when its mean normal is within this angle of +Z
+#: (degrees): then its xy silhouette is its outline (the fit's outline term) and the template is
+#: built, charted and cut out along +Z (``mesh.view_frame``, ``mesh.texture_bake``)
+FACE_ON_MAX_DEG = 30.0
+
 
 @dataclass
 class FitParams:

@@ -72,7 +72,7 @@ from leaffit_usd.determinism import deterministic
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.fit.denoise import DenoiseParams, denoise_leaf
 from leaffit_usd.fit.mls import DEFAULT_SIGMA, mls_weights
-from leaffit_usd.fit.params import FitParams
+from leaffit_usd.fit.params import FACE_ON_MAX_DEG, FitParams
 from leaffit_usd.fit.result import LeafFits
 from leaffit_usd.geometry.pca import leaf_frame, pca
 from leaffit_usd.geometry.sampling import farthest_point_sampling, sample_at_most, voxel_centroids
@@ -626,10 +626,6 @@ def _optimize(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray, mean
             break
     return q.detach().double().numpy()
 
-
-#: a leaf's silhouette in its fit frame's xy is its outline when its mean normal is within this
-#: angle of the frame's +Z (the mesh's sheet-view rule, ``mesh.view_frame``, uses the same 30)
-FACE_ON_MAX_DEG = 30.0
 
 
 def _seen_face_on(lf: _Leaf) -> bool:

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from leaffit_usd.fit.params import FACE_ON_MAX_DEG
+
 
 def mean_oriented_normal(points: np.ndarray, k: int = 16) -> tuple[np.ndarray, float]:
     """The mean of consistently oriented normals of ``points`` (N, 3) and the fraction of the
@@ -47,7 +49,7 @@ def mean_oriented_normal(points: np.ndarray, k: int = 16) -> tuple[np.ndarray, f
     return m, float(np.mean(n @ m > 0.0))
 
 
-def sheet_view_rotation(points: np.ndarray, max_angle_deg: float = 30.0) -> np.ndarray:
+def sheet_view_rotation(points: np.ndarray, max_angle_deg: float = FACE_ON_MAX_DEG) -> np.ndarray:
     """(3, 3) rotation from the template frame to the sheet-view frame (rows: the view frame's
     axes in template coordinates; view = template @ R.T).
 
