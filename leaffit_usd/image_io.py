@@ -136,10 +136,10 @@ def write_image(path: str | os.PathLike, image: np.ndarray, max_size: int | None
         m.attribute("oiio:ColorSpace", "sRGB")
         # zlib level 7 with libpng's "up" row filter (PNG_FILTER_UP = 32) instead of level 9 with
         # adaptive filtering: the same size (the 26 textures of benchmarks/render.py's 13 plants:
-        # 580 KB mean both ways, each within -5 % .. +4 %) in a tenth of the time (0.37 s against
-        # 3.46 s per 1024^2 RGBA texture, 6 s of a 36 s `convert`). A leaf texture's rows change
-        # slowly (smooth colour, dilated padding), so the row above predicts a row well; level 9's
-        # longer match search buys nothing on top of that filter but time.
+        # 580 KB mean both ways, each within -4.3 % .. +3.7 %) in a tenth of the time (0.40 s
+        # against 3.72 s per 1024^2 RGBA texture, benchmarks/png_encode.py). A leaf texture's
+        # rows change slowly (smooth colour, dilated padding), so the row above predicts a row
+        # well; level 9's longer match search buys little on top of that filter but time.
         m.attribute("png:compressionLevel", PNG_LEVEL)
         m.attribute("png:filter", PNG_FILTER)
     elif fmt == "jpg":
