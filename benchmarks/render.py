@@ -47,7 +47,7 @@ runs on the sample plants only and prints why (the surface errors need ``eval_de
 render metrics do not).
 
     .venv/bin/python benchmarks/render.py [--sets suite,paper8] [--plants a,b] [--size 384]
-        [--work DIR] [--reuse] [--pictures DIR] [--compare before.json]
+        [--work DIR] [--reuse] [--pictures DIR] [--compare before.json] [-K 64]
 """
 from __future__ import annotations
 
@@ -381,7 +381,9 @@ def convert_with(code: Path, ply: Path, out: Path, gtp: Path, saved: Path) -> No
 
 
 def run_plant(d: Path, work: Path, size: int, pictures: Path | None, tag: str,
-              reuse: bool = False, code: Path | None = None) -> dict:
+              reuse: bool = False, code: Path | None = None, K: int | None = None) -> dict:
+    """K: control points per leaf for ``convert`` (None = the default ``FitParams().K``)."""
+    from leaffit_usd.fit.params import FitParams
     from leaffit_usd.pipeline import ConvertOptions, convert
     from leaffit_usd.splats import load_cloud
     from leaffit_usd.usd.reader import read_stage
@@ -400,7 +402,8 @@ def run_plant(d: Path, work: Path, size: int, pictures: Path | None, tag: str,
         report = json.loads(saved.read_text())
     else:
         report = convert(d / "point_cloud.ply", out,
-                         ConvertOptions(up=up, root=root_pt, labels=str(gtp)))
+                         ConvertOptions(up=up, root=root_pt, labels=str(gtp),
+                                        fit=FitParams() if K is None else FitParams(K=K)))
         saved.write_text(json.dumps(report, default=str))
     t_convert = time.perf_counter() - t0
     asset = read_stage(out)
@@ -573,8 +576,11 @@ def _save(args, rows: list[dict]) -> None:
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     from benchmarks.machine import machine_info
 
+    from leaffit_usd.fit.params import FitParams
+
+    K = None if args.convert_with or args.reuse else (args.K or FitParams().K)   # None: not this code's
     atomic_write_bytes(args.out, (json.dumps(dict(rows=rows, size=args.size, views=N_VIEWS,
-                                                  elevation=ELEVATION, machine=machine_info()),
+                                                  elevation=ELEVATION, K=K, machine=machine_info()),
                                              indent=1) + "\n").encode())
 
 
@@ -587,6 +593,8 @@ def main(argv=None) -> int:
     ap.add_argument("--pictures", default=None, help="write input | asset PNGs here")
     ap.add_argument("--reuse", action="store_true",
                     help="render the stages an earlier run left in --work instead of converting again")
+    ap.add_argument("-K", type=int, default=None,
+                    help="control points per leaf for convert (default: FitParams' default)")
     ap.add_argument("--out", default=str(RESULTS / "render.json"))
     ap.add_argument("--convert-with", default=None,
                     help="convert with the code in this folder (a git worktree of another commit: "
@@ -604,6 +612,8 @@ def main(argv=None) -> int:
             before = [r for f in args.compare.split(",") for r in json.loads(Path(f).read_text())["rows"]]
             print(fmt_compare(before, rows))
         return 0
+    if args.K is not None and (args.convert_with or args.reuse):
+        ap.error("-K applies to this code's convert only (not with --convert-with or --reuse)")
     work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="leaffit_render_"))
     sets = [s.strip() for s in args.sets.split(",") if s.strip()]
     plants = []
@@ -623,7 +633,7 @@ def main(argv=None) -> int:
     for tag, d in plants:
         row = run_plant(d, work / "out" / tag, args.size,
                         Path(args.pictures) if args.pictures else None, tag, args.reuse,
-                        Path(args.convert_with) if args.convert_with else None)
+                        Path(args.convert_with) if args.convert_with else None, args.K)
         rows.append(row)
         print(f"{tag} {d.name}: IoU min {row['iou_min']:.3f}, PSNR {row['psnr']:.2f}, SSIM {row['ssim']:.3f}, "
               f"stem Corr {row.get('stem_corr', float('nan')):.4f} HD {row.get('stem_hd', float('nan')):.4f}, "
