@@ -4,7 +4,7 @@ blade (a stem brushing it, a petiole touching both sides of a sinus)?
 The blades segmentation splits a blade at every stalk contact (``segment.blades``, step 3). When
 one true leaf has two contacts, it is cut in two. This script runs the default segmentation with
 the ground-truth up and root, and for every blade with two or more contacts prints, per contact,
-three cues and whether it is the true leaf's entry (its contact nearest the root in ``D_r``) or a
+four cues and whether it is the true leaf's entry (its contact nearest the root in ``D_r``) or a
 spurious one (a further contact of the same true leaf):
 
 * ``cont``: does the stem go on past the contact? The largest ``D_r`` reached through stem graph
@@ -14,6 +14,11 @@ spurious one (a further contact of the same true leaf):
   plane lands within 1.5 spacings of a point of the blade.
 * ``inplane``: how many of the contact's points keep a stem edge inside their tangent plane
   (``|e . n| <= tangent_sin``).
+
+* ``encl``: is the contact surrounded by blade? Per annulus of ``blades.FACE_ANNULI``, the
+  share of angular sectors around it (in its tangent plane) holding blade points
+  (``blades.contact_sector_shares``). The segmentation drops a contact that fills 15 of 16
+  sectors in every annulus (``blades.face_contacts``): a stem touching the blade's face.
 
 A cue separates the cases when the entries' and the spurious contacts' ranges do not overlap;
 the summary prints both ranges per cue.
@@ -91,7 +96,7 @@ def contact_cues(g, sheet, stem, d_root, members, groups, link, params, reach, c
             e = g.points[nb[stem[nb]]] - g.points[i]
             e /= np.maximum(np.linalg.norm(e, axis=1, keepdims=True), 1e-12)
             inplane += int((np.abs(e @ g.normals[i]) <= params.tangent_sin).any())
-        out.append((cont, cover, inplane, len(grp)))
+        out.append((cont, cover, inplane, len(grp), blades.contact_sector_shares(g, members, grp)))
     return out
 
 
@@ -181,13 +186,15 @@ def observe(name, cloud, gt_labels, frame_choice, args, rows, pairs=None):
             gb = blades._restrict(seen["sheet"], ~seen["stem"])
             dist = np.stack([dijkstra(gb, indices=grp, min_only=True)[members] for grp in groups])
             seen["blades"].append((members, np.argmin(dist, 0)))
-            for k, (cont, cover, inplane, n) in enumerate(cues):
+            for k, (cont, cover, inplane, n, encl) in enumerate(cues):
                 same = [j for j in range(len(groups)) if true_leaf[j] == true_leaf[k]]
                 entry = min(same, key=lambda j: depth[j]) == k
                 rows.append(dict(plant=name, leaf=true_leaf[k], n=n, cont=cont, cover=cover,
-                                 inplane=inplane, entry=entry))
+                                 inplane=inplane, entry=entry,
+                                 **{f"encl{i}": e for i, e in enumerate(encl)}))
                 print(f"{name:24s} leaf {true_leaf[k]:3d} n {n:3d}  cont {cont:6.3f}  cover {cover:4.2f}  "
-                      f"in-plane {inplane:3d}/{n:<3d} {'entry' if entry else 'SPURIOUS'}", flush=True)
+                      f"in-plane {inplane:3d}/{n:<3d} encl {' '.join(f'{e:4.2f}' for e in encl)}  "
+                      f"{'entry' if entry else 'SPURIOUS'}", flush=True)
         return groups
 
     blades.find_leaves, blades._attachment_groups = wrapped_find, wrapped_groups
@@ -235,7 +242,7 @@ def main(argv=None) -> int:
     entries = [r for r in rows if r["entry"]]
     spurious = [r for r in rows if not r["entry"]]
     print(f"\n{len(rows)} contacts on multi-contact blades: {len(entries)} entries, {len(spurious)} spurious")
-    for cue in ("cont", "cover", "inplane_share"):
+    for cue in ("cont", "cover", "inplane_share") + tuple(f"encl{i}" for i in range(len(blades.FACE_ANNULI))):
         def val(r):
             return r["inplane"] / r["n"] if cue == "inplane_share" else r[cue]
 

@@ -210,3 +210,35 @@ def test_a_dense_plant_is_segmented_on_a_subset_and_every_gaussian_labelled():
     root = int(np.flatnonzero(perm == pl.root_index)[0])
     shuffled = segment_plant(pts[perm], root, prm, normals=nrm[perm])
     assert np.array_equal(shuffled.labels, seg.labels[perm])
+
+
+def test_a_stalk_contact_inside_the_blade_touches_its_face():
+    """``face_contacts``: a contact in the middle of a blade (a stem brushing its face) is
+    surrounded by blade; one at the margin (where a petiole enters) is open on its stalk's side."""
+    from leaffit_usd.segment.blades import face_contacts
+
+    rng = np.random.default_rng(8)
+    disc, dn = _disc(np.array([0.2, 0.0, 0.45]), [0, 0, 1.0], 0.15, 9000, rng)
+    g = build_surface_graph(disc, dn, np.ones(len(disc), bool), SegmentParams())
+    members = np.arange(g.size)
+    d = g.points - np.array([0.2, 0.0, 0.45])
+    inside = np.flatnonzero(np.linalg.norm(d, axis=1) < 0.006)
+    margin = np.flatnonzero(np.linalg.norm(g.points - np.array([0.05, 0.0, 0.45]), axis=1) < 0.012)
+    halfway = np.flatnonzero(np.linalg.norm(g.points - np.array([0.125, 0.0, 0.45]), axis=1) < 0.006)
+    assert min(len(inside), len(margin), len(halfway)) >= 2
+    assert face_contacts(g, members, [inside, margin, halfway]).tolist() == [True, False, True]
+
+
+def test_a_stem_touching_a_blade_from_below_does_not_cut_the_leaf():
+    """A branch ending under the middle of a blade touches it: the blade then has two stalk
+    contacts, its petiole's at the margin and the branch's in its face. Only the petiole enters
+    the leaf; the blade stays one leaf (white_flag_bush's leaf 7 was cut in pieces this way)."""
+    rng = np.random.default_rng(9)
+    parts = [(*_cylinder([0, 0, 0], [0, 0, 0.9], 0.006, 3000, rng), 0)]
+    parts.append((*_cylinder([0, 0, 0.45], [0.05, 0, 0.45], 0.003, 300, rng), 0))
+    parts.append((*_cylinder([0, 0, 0.25], [0.2, 0.04, 0.4475], 0.003, 1200, rng), 0))
+    parts.append((*_disc(np.array([0.2, 0.0, 0.45]), [0, 0, 1.0], 0.15, 9000, rng), 1))
+    pts, nrm, lab, root = _assemble(parts, rng, noise=0.0003)
+    seg = segment_plant(pts, root, normals=nrm)
+    assert seg.n_leaves == 1
+    assert segmentation_scores(seg.labels, lab).miou >= 90
