@@ -30,7 +30,8 @@ Steps (working frame: root at the origin, +Z up, plant height 1; radii in those 
    its petiole (or petiolule, or a sessile base) enters: the *attachments*, sheet points with a
    stem neighbour, clustered within ``attach_link`` spacings. A blade with several attachments
    is several leaves (touching or overlapping leaves, each on its own stalk): it is split by
-   graph-geodesic distance from each attachment.
+   graph-geodesic distance from each attachment. An attachment with blade all round it is a stem
+   touching the blade's face, not a stalk's entry (:func:`face_contacts`), and cuts nothing.
 4. **Leaflets joined at one point** (the three leaflets of a trifoliate leaf meeting at the end of
    the rachis, touching young leaves of a bud) share one attachment. The merge tree of the
    superlevel sets of the distance from the attachment separates them: tips are born, branches
