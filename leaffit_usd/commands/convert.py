@@ -54,7 +54,7 @@ def add_options(p) -> None:
     g = add_segment_arguments(p)
     g.add_argument("--labels", metavar="L.npz", help="reuse a segmentation: .npz with 'labels' (int per input Gaussian, file order, 0 = stem)")
     add_edits_argument(g)
-    g = p.add_argument_group("fit (paper defaults, except sigma and the refinement: see --paper-fit)")
+    g = p.add_argument_group("fit (paper defaults, except K, sigma, the regulariser and the refinement: see --paper-fit)")
     g.add_argument("--template", default=None, metavar="ID|auto",
                    help=f"template leaf: auto or a leaf label ({fit('template')})")
     g.add_argument("-K", type=pos_int, default=None, help=f"control points per leaf ({fit('K')})")
@@ -67,7 +67,7 @@ def add_options(p) -> None:
     g.add_argument("--refine", type=pos_int, default=None, metavar="N",
                    help=f"Gauss-Newton refinement iterations after Adam ({fit('refine')}; 0 = Adam only)")
     g.add_argument("--paper-fit", action="store_true",
-                   help="the paper's registration exactly: sigma 0.1, no refinement")
+                   help="the paper's registration exactly: K 32, sigma 0.1, no refinement")
     g.add_argument("--no-optimize", action="store_true", help="initial correspondence only (ablation)")
     g.add_argument("--seed", type=pos_int, default=None, help=f"random seed ({fit('seed')})")
     g = p.add_argument_group("mesh")

@@ -21,7 +21,18 @@ Formulation (row vectors; w_hat are normalised weights so the regulariser is sca
 
 The shift by min_k d2_k leaves w_hat unchanged and keeps the exponentials from underflowing in
 float32. The regulariser makes P invertible for a flat (coplanar) template, where the affine
-moment matrix is singular; every implementation uses the same ``reg``.
+moment matrix is singular; every implementation uses the same ``reg`` (the stage stores it).
+
+Why ``reg`` = 0.03 and not the 0.01 that invertibility alone needs: on a curved template the
+control points within a kernel width differ in height across the sheet by a few thousandths of
+the leaf, so P's smallest eigenvalue is that tiny spread squared, and the field's derivative
+across the sheet is whatever the targets' small height differences make of it (up to 55x a rigid
+map's on rubber_tree at K = 32, ``benchmarks/fit_diag.py``). Every fitted point lies on the sheet,
+so nothing in the fit constrains that derivative, and the points a hair off the fitted sheet
+(the template mesh's rim, grown out to the splats' silhouette) are thrown. (0.03 sigma)^2 damps
+that direction only: the spread along the sheet, about 0.1-0.3 sigma^2 within a kernel, is left
+as it was. 13 render plants, K = 48: reg 0.01 -> 0.03 lowers leaf HD on 10 (rubber_tree 0.127 ->
+0.109) (``benchmarks/render.py``, README).
 
 Frames: p, v and q are in one frame (the leaf's local frame, working units).
 """
@@ -30,7 +41,7 @@ from __future__ import annotations
 import numpy as np
 
 DEFAULT_SIGMA = 0.1   # kernel width, working units: the paper's (fit_leaves defaults to one relative to the template leaf)
-DEFAULT_REG = 0.01    # regulariser, as a fraction of sigma
+DEFAULT_REG = 0.03    # regulariser, as a fraction of sigma (why 0.03: the module docstring)
 
 
 def mls_weights(p: np.ndarray, v: np.ndarray, sigma: float = DEFAULT_SIGMA,

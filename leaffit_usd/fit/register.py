@@ -47,6 +47,8 @@ prints both rows, on 10 generated plants / 110 target leaves):
   are relative to the plant: on the generated plants (leaf sizes 0.05-0.14) 0.1 is 0.7-2 leaf
   sizes, too smooth for the smaller leaves to follow their fold, droop and twist. Relative to the
   template, the field has the same stiffness on any plant.
+* **48 control points, MLS regulariser 0.03** (the paper: 32; no regulariser): see
+  ``FitParams`` and :mod:`leaffit_usd.fit.mls`.
 * **Refinement** (step 6): Adam stops short of the objective's optimum; the exact solves finish it.
   Together: Corr 0.0085 -> 0.0071, CD 0.00009 -> 0.00006, HD 0.192 -> 0.168 (x10).
 The denoising sigma stays the paper's 0.1 (``denoise``).

@@ -31,18 +31,21 @@ def test_translation_is_reproduced_exactly(leaf):
 
 
 def test_identity_targets_nearly_reproduce_points(leaf):
-    # the regulariser shrinks the affine part slightly; the error stays far below the leaf size
+    # the regulariser shrinks the affine part slightly: along the sheet the error stays far below
+    # the leaf size (0.2); across it, it damps the field's derivative on purpose (``fit.mls``),
+    # so a point moves onto the handles' local plane, never farther than the sheet's thickness
     p, v = leaf
-    err = np.abs(deform_points(p, p, v) - v).max()
-    assert err < 0.01 * 0.2
+    err = np.abs(deform_points(p, p, v) - v)
+    assert err[:, :2].max() < 0.005 * 0.2
+    assert err[:, 2].max() < 0.004  # p and v each within +-0.002 of the plane
 
 
 def test_affine_targets_follow_the_affine_map_in_plane(leaf):
     p, v = leaf
     m = np.array([[1.2, 0.3, 0.0], [-0.1, 0.8, 0.0], [0.0, 0.0, 1.0]])
     t = np.array([0.1, 0.2, 0.3])
-    got = deform_points(p, p @ m + t, v)
-    assert np.abs(got - (v @ m + t)).max() < 0.01 * 0.2
+    err = np.abs(deform_points(p, p @ m + t, v) - (v @ m + t))
+    assert err[:, :2].max() < 0.005 * 0.2 and err[:, 2].max() < 0.004
 
 
 def test_flat_template_with_far_points_stays_finite():

@@ -50,7 +50,7 @@ def _nn_error(plant, f, j):
 
 
 def test_fits_shapes_and_contract(plant, fits):
-    L, K = plant.seg.n_leaves, 32
+    L, K = plant.seg.n_leaves, FitParams().K
     assert fits.targets.shape == (L, K, 3) and fits.targets.dtype == np.float32
     assert fits.template_controls.shape == (K, 3)
     assert fits.leaf_to_working.shape == (L, 4, 4)
@@ -99,7 +99,7 @@ def test_deterministic_and_serialisable(plant, fits, tmp_path):
     save_value(fits, tmp_path / "fits.npz")
     back = load_value(LeafFits, tmp_path / "fits.npz")
     np.testing.assert_array_equal(back.targets, fits.targets)
-    assert back.params["K"] == 32 and back.template_label == fits.template_label
+    assert back.params["K"] == FitParams().K and back.template_label == fits.template_label
 
 
 def test_explicit_template_and_bad_parameters(plant):
@@ -165,7 +165,7 @@ def test_auto_template_avoids_incomplete_leaf():
 def test_no_leaves_gives_empty_fits(plant):
     seg = Segmentation(labels=np.zeros(len(plant.cloud), np.int32), root_index=0)
     f = fit_leaves(plant.cloud, seg)
-    assert f.targets.shape == (0, 32, 3) and f.leaf_to_working.shape == (0, 4, 4)
+    assert f.targets.shape == (0, FitParams().K, 3) and f.leaf_to_working.shape == (0, 4, 4)
 
 
 def test_adam_matches_torch():
@@ -238,7 +238,7 @@ def test_convert_fit_flags_reach_fit_params(capsys):
         return convert.options_from_args(p.parse_args(["x.ply", "-o", "y.usda", *argv])).fit
 
     assert fit_of() == FitParams() and FitParams().sigma == "auto" and FitParams().refine > 0
-    assert fit_of("--paper-fit") == FitParams.paper() == FitParams(sigma=0.1, refine=0)
+    assert fit_of("--paper-fit") == FitParams.paper() == FitParams(K=32, sigma=0.1, refine=0, reg=0.01)
     assert fit_of("--paper-fit", "--refine", "3").refine == 3
     assert fit_of("--sigma", "AUTO").sigma == "auto" and fit_of("--sigma", "0.05").sigma == 0.05
     with pytest.raises(SystemExit) as e:
