@@ -80,9 +80,7 @@ def contact_cues(g, sheet, stem, d_root, members, groups, link, params, reach, c
         touch = np.unique(np.concatenate([nb[stem[nb]] for nb in nbrs]))
         dist = dijkstra(stem_graph, indices=touch, min_only=True, limit=reach)
         cont = float(np.max(d_root[np.isfinite(dist)]) - np.median(d_root[touch]))
-        centre = g.points[grp].mean(0)
-        nv = g.normals[grp] * np.sign(g.normals[grp] @ g.normals[grp[0]])[:, None]
-        n = nv.mean(0) / np.linalg.norm(nv.mean(0))
+        centre, n = blades.contact_plane(g, grp)
         basis = plane_basis(n)
         radius = cover_links * link
         near = stem_idx[stem_tree.query_ball_point(centre, radius)]

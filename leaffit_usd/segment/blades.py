@@ -289,13 +289,10 @@ def contact_sector_shares(g: SurfaceGraph, members: np.ndarray, grp: np.ndarray)
     ``FACE_SECTORS`` angular sectors that hold a point of the blade ``members`` lying within half
     the annulus' outer radius of that plane. 1.0: blade all round."""
     spacing = float(np.median(g.spacing))
-    nv = g.normals[grp] * np.sign(g.normals[grp] @ g.normals[grp[0]])[:, None]
-    n = nv.mean(0)
-    norm = float(np.linalg.norm(n))
-    if norm <= 1e-12:
+    centre, n = contact_plane(g, grp)
+    if n is None:
         return (0.0,) * len(FACE_ANNULI)
-    n = n / norm
-    rel = g.points[members] - g.points[grp].mean(0)
+    rel = g.points[members] - centre
     xy = rel @ plane_basis(n)
     r = np.linalg.norm(xy, axis=1)
     sector = np.floor((np.arctan2(xy[:, 1], xy[:, 0]) + np.pi) / (2 * np.pi) * FACE_SECTORS)
@@ -305,6 +302,15 @@ def contact_sector_shares(g: SurfaceGraph, members: np.ndarray, grp: np.ndarray)
         sel = (r >= lo * spacing) & (r < hi * spacing) & (h < 0.5 * hi * spacing)
         out.append(len(np.unique(sector[sel])) / FACE_SECTORS)
     return tuple(out)
+
+
+def contact_plane(g: SurfaceGraph, grp: np.ndarray):
+    """The tangent plane of the contact ``grp`` (graph indices): its points' centroid (3,) and
+    their mean normal, signs aligned to the first point's (unit (3,); None when they cancel)."""
+    nv = g.normals[grp] * np.sign(g.normals[grp] @ g.normals[grp[0]])[:, None]
+    n = nv.mean(0)
+    norm = float(np.linalg.norm(n))
+    return g.points[grp].mean(0), (n / norm if norm > 1e-12 else None)
 
 
 def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
