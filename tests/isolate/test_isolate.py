@@ -197,7 +197,7 @@ def test_same_bytes_at_1_and_2_threads_without_open3d(tmp_path, capture):
 
 
 def test_ransac_plane_finds_the_plane_among_outliers():
-    from leaffit_usd.isolate.scene import _fit_plane, _heights, _ransac_plane
+    from leaffit_usd.isolate.shapes import fit_plane as _fit_plane, heights as _heights, ransac_plane as _ransac_plane
 
     rng = np.random.default_rng(3)
     n_true = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
@@ -298,7 +298,7 @@ def test_grid_component_and_dilation_equal_ndimage():
     and binary_dilation, on random grids of every density, thin strips, ties and empty grids."""
     from scipy import ndimage
 
-    from leaffit_usd.isolate.scene import dilate_8, largest_component_8
+    from leaffit_usd.isolate.shapes import dilate_8, largest_component_8
 
     rng = np.random.default_rng(3)
     eight = np.ones((3, 3), bool)
