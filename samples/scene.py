@@ -17,6 +17,8 @@ room), 5 floater.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 SCENE_CLASSES = ("plant", "ground", "pot", "soil", "background", "floater")
@@ -44,6 +46,103 @@ def _flat(pos, nrm, spacing, rng, thin=0.12):
     s1 = spacing * 0.6 * np.exp(rng.normal(0, 0.25, n))
     s2 = s1 * rng.uniform(0.5, 1.0, n)
     return np.stack([s1, s2, thin * np.sqrt(s1 * s2)], 1), _frame_from_normal(nrm)
+
+
+WALL = 0.012  # pot wall thickness, m
+
+
+@dataclass(frozen=True)
+class PotGeometry:
+    """A tapered round pot standing on z = ``z_bot`` around the +Z axis (canonical frame, metres).
+
+    r_top, r_bot : outer radius at the rim / the bottom; height : rim above the bottom;
+    z_soil : the soil surface; z_rim : the rim's top (``z_bot = z_rim - height``)."""
+
+    r_top: float
+    r_bot: float
+    height: float
+    z_soil: float
+    z_rim: float
+
+    @property
+    def z_bot(self) -> float:
+        return self.z_rim - self.height
+
+    def radius_at(self, z):
+        """Outer radius at height z (m)."""
+        return self.r_bot + (self.r_top - self.r_bot) * (z - self.z_bot) / self.height
+
+
+def pot_gaussians(geo: PotGeometry, m: int, pot_col, rng: np.random.Generator, opacity,
+                  shares=(0.75, 0.12)):
+    """Gaussians of the pot: outer wall, inner wall above the soil and the rounded rim lip.
+
+    m : how many; pot_col : (3,) RGB; opacity : callable m -> (m,) opacities (drawn from
+    ``rng``); shares : outer and inner wall's shares of m (the lip gets the rest).
+    Returns three (pos (k, 3), scales (k, 3), R (k, 3, 3), colour (k, 3), opacity (k,), POT).
+    """
+    r_top, r_bot, ph = geo.r_top, geo.r_bot, geo.height
+    z_soil, z_rim, z_bot = geo.z_soil, geo.z_rim, geo.z_bot
+    out = []
+    m_out, m_in = int(shares[0] * m), int(shares[1] * m)
+    m_rim = m - m_out - m_in
+    z = rng.uniform(z_bot, z_rim, m_out)
+    r = r_bot + (r_top - r_bot) * (z - z_bot) / ph
+    a = rng.uniform(0, 2 * np.pi, m_out)
+    pos = np.stack([r * np.cos(a), r * np.sin(a), z], 1)
+    slope = (r_bot - r_top) / ph
+    nrm = np.stack([np.cos(a), np.sin(a), np.full(m_out, -slope)], 1)
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    area = np.pi * (r_top + r_bot) * ph
+    sc, R = _flat(pos, nrm, np.sqrt(area / m_out), rng)
+    shade = (0.8 + 0.2 * np.cos(a - 0.7))[:, None]
+    out.append((pos + nrm * rng.normal(0, 0.0005, (m_out, 1)), sc, R,
+                pot_col * shade * rng.uniform(0.9, 1.08, (m_out, 1)), opacity(m_out), POT))
+    t = rng.uniform(0, 1, m_in)
+    z = z_soil + t * (z_rim - z_soil)
+    r = r_bot + (r_top - r_bot) * (z - z_bot) / ph - WALL
+    a = rng.uniform(0, 2 * np.pi, m_in)
+    pos = np.stack([r * np.cos(a), r * np.sin(a), z], 1)
+    nrm = -np.stack([np.cos(a), np.sin(a), np.zeros(m_in)], 1)
+    sc, R = _flat(pos, nrm, np.sqrt(2 * np.pi * r_top * (z_rim - z_soil) / m_in), rng)
+    out.append((pos, sc, R, pot_col * 0.7 * rng.uniform(0.9, 1.1, (m_in, 1)), opacity(m_in), POT))
+    a = rng.uniform(0, 2 * np.pi, m_rim)
+    b = rng.uniform(-np.pi / 2, np.pi, m_rim)  # around the lip's half-torus
+    lip = 0.5 * WALL + 0.003
+    rr = r_top - 0.5 * WALL + lip * np.cos(b)
+    pos = np.stack([rr * np.cos(a), rr * np.sin(a), z_rim + lip * np.sin(b)], 1)
+    nrm = np.stack([np.cos(b) * np.cos(a), np.cos(b) * np.sin(a), np.sin(b)], 1)
+    sc, R = _flat(pos, nrm, np.sqrt(2 * np.pi * r_top * np.pi * lip / m_rim), rng)
+    out.append((pos, sc, R, pot_col * rng.uniform(0.95, 1.15, (m_rim, 1)), opacity(m_rim), POT))
+    return out
+
+
+def _soil_colour_ideal(m: int, rng: np.random.Generator) -> np.ndarray:
+    """Brown soil with 6 % light pebbles, (m, 3) RGB."""
+    col = np.array([0.22, 0.15, 0.10]) * rng.uniform(0.6, 1.3, (m, 1))
+    pebble = rng.uniform(size=m) < 0.06
+    col[pebble] = np.array([0.6, 0.58, 0.52]) * rng.uniform(0.8, 1.1, (int(pebble.sum()), 1))
+    return col
+
+
+def soil_gaussians(geo: PotGeometry, m: int, rng: np.random.Generator, opacity,
+                   colour=_soil_colour_ideal):
+    """Gaussians of the soil: a bumpy disk filling the pot at ``geo.z_soil``.
+
+    colour : callable (m, rng) -> (m, 3) RGB. Returns (pos, scales, R, colour, opacity, SOIL).
+    """
+    r_in = geo.radius_at(geo.z_soil) - WALL
+    rr = r_in * np.sqrt(rng.uniform(0, 1, m))
+    a = rng.uniform(0, 2 * np.pi, m)
+    x, y = rr * np.cos(a), rr * np.sin(a)
+    k = rng.normal(0, 1, (5, 2)) * 25.0
+    ph_ = rng.uniform(0, 2 * np.pi, 5)
+    bump = 0.0025 * np.sum(np.sin(np.outer(x, k[:, 0]) + np.outer(y, k[:, 1]) + ph_), axis=1) / np.sqrt(5)
+    pos = np.stack([x, y, geo.z_soil + bump + rng.normal(0, 0.0008, m)], 1)
+    nrm = np.c_[rng.normal(0, 0.15, (m, 2)), np.ones(m)]
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    sc, R = _flat(pos, nrm, np.sqrt(np.pi * r_in ** 2 / m), rng, thin=0.3)
+    return pos, sc, R, colour(m, rng), opacity(m), SOIL
 
 
 def make_scene(plant_pos: np.ndarray, height: float, n: int, rng: np.random.Generator):
@@ -79,57 +178,11 @@ def make_scene(plant_pos: np.ndarray, height: float, n: int, rng: np.random.Gene
     def opaque(m):
         return np.where(rng.uniform(size=m) < 0.92, rng.uniform(0.8, 0.999, m), rng.uniform(0.2, 0.8, m))
 
-    # ---- pot: outer wall, inner wall above the soil, rim lip -------------------------------
-    m = cnt["pot"]
-    m_out, m_in = int(0.75 * m), int(0.12 * m)
-    m_rim = m - m_out - m_in
-    z = rng.uniform(z_bot, z_rim, m_out)
-    r = r_bot + (r_top - r_bot) * (z - z_bot) / ph
-    a = rng.uniform(0, 2 * np.pi, m_out)
-    pos = np.stack([r * np.cos(a), r * np.sin(a), z], 1)
-    slope = (r_bot - r_top) / ph
-    nrm = np.stack([np.cos(a), np.sin(a), np.full(m_out, -slope)], 1)
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    area = np.pi * (r_top + r_bot) * ph
-    sc, R = _flat(pos, nrm, np.sqrt(area / m_out), rng)
-    shade = (0.8 + 0.2 * np.cos(a - 0.7))[:, None]
-    add(pos + nrm * rng.normal(0, 0.0005, (m_out, 1)), sc, R,
-        pot_col * shade * rng.uniform(0.9, 1.08, (m_out, 1)), opaque(m_out), POT)
-    t = rng.uniform(0, 1, m_in)
-    z = z_soil + t * (z_rim - z_soil)
-    wall = 0.012  # wall thickness, m
-    r = r_bot + (r_top - r_bot) * (z - z_bot) / ph - wall
-    a = rng.uniform(0, 2 * np.pi, m_in)
-    pos = np.stack([r * np.cos(a), r * np.sin(a), z], 1)
-    nrm = -np.stack([np.cos(a), np.sin(a), np.zeros(m_in)], 1)
-    sc, R = _flat(pos, nrm, np.sqrt(2 * np.pi * r_top * (z_rim - z_soil) / m_in), rng)
-    add(pos, sc, R, pot_col * 0.7 * rng.uniform(0.9, 1.1, (m_in, 1)), opaque(m_in), POT)
-    a = rng.uniform(0, 2 * np.pi, m_rim)
-    b = rng.uniform(-np.pi / 2, np.pi, m_rim)  # around the lip's half-torus
-    lip = 0.5 * wall + 0.003
-    rr = r_top - 0.5 * wall + lip * np.cos(b)
-    pos = np.stack([rr * np.cos(a), rr * np.sin(a), z_rim + lip * np.sin(b)], 1)
-    nrm = np.stack([np.cos(b) * np.cos(a), np.cos(b) * np.sin(a), np.sin(b)], 1)
-    sc, R = _flat(pos, nrm, np.sqrt(2 * np.pi * r_top * np.pi * lip / m_rim), rng)
-    add(pos, sc, R, pot_col * rng.uniform(0.95, 1.15, (m_rim, 1)), opaque(m_rim), POT)
-
-    # ---- soil: bumpy disk with pebbles ------------------------------------------------------
-    m = cnt["soil"]
-    r_in = r_bot + (r_top - r_bot) * (z_soil - z_bot) / ph - wall
-    rr = r_in * np.sqrt(rng.uniform(0, 1, m))
-    a = rng.uniform(0, 2 * np.pi, m)
-    x, y = rr * np.cos(a), rr * np.sin(a)
-    k = rng.normal(0, 1, (5, 2)) * 25.0
-    ph_ = rng.uniform(0, 2 * np.pi, 5)
-    bump = 0.0025 * np.sum(np.sin(np.outer(x, k[:, 0]) + np.outer(y, k[:, 1]) + ph_), axis=1) / np.sqrt(5)
-    pos = np.stack([x, y, z_soil + bump + rng.normal(0, 0.0008, m)], 1)
-    nrm = np.c_[rng.normal(0, 0.15, (m, 2)), np.ones(m)]
-    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
-    sc, R = _flat(pos, nrm, np.sqrt(np.pi * r_in ** 2 / m), rng, thin=0.3)
-    col = np.array([0.22, 0.15, 0.10]) * rng.uniform(0.6, 1.3, (m, 1))
-    pebble = rng.uniform(size=m) < 0.06
-    col[pebble] = np.array([0.6, 0.58, 0.52]) * rng.uniform(0.8, 1.1, (int(pebble.sum()), 1))
-    add(pos, sc, R, col, opaque(m), SOIL)
+    # ---- pot (outer wall, inner wall above the soil, rim lip) and soil ---------------------------
+    geo = PotGeometry(r_top, r_bot, ph, z_soil, z_rim)
+    for part in pot_gaussians(geo, cnt["pot"], pot_col, rng, opaque):
+        add(*part)
+    add(*soil_gaussians(geo, cnt["soil"], rng, opaque))
 
     # ---- table top: wood grain, the pot's footprint left out ---------------------------------
     m = cnt["table"]
