@@ -61,6 +61,7 @@ from leaffit_usd.geometry.sampling import position_order_sample
 from leaffit_usd.isolate.shapes import (angular_coverage, circle_fit, components, fit_plane, heights,
                                         in_grid, knn_graph, largest_patch, ransac_plane, span,
                                         voxel_down)
+from leaffit_usd.isolate.soil import classify_pot_and_soil, find_soil
 from leaffit_usd.isolate.result import (BACKGROUND, FLOATER, GROUND, PLANT, POT, SOIL,
                                         Isolation)
 
@@ -194,7 +195,7 @@ def isolate_plant(cloud, params: IsolateParams | None = None, up: np.ndarray | N
     # 1-3 on the samples -----------------------------------------------------------------------
     # the same Gaussians in another file order give the same samples, hence the same classes
     sidx = cand_idx[position_order_sample(pts[cand_idx], p_.sample, p_.seed)]
-    scls, ground, thr, radius = _analyse_samples(pts[sidx], p_, up, timings)
+    scls, ground, soil, thr, radius = _analyse_samples(pts[sidx], p_, up, timings)
 
     # every Gaussian: its sample's class, the ground plane's exact rule --------------------------
     t0 = time.perf_counter()
@@ -210,7 +211,9 @@ def isolate_plant(cloud, params: IsolateParams | None = None, up: np.ndarray | N
     t0 = time.perf_counter()
     up_vec = ground[0] if ground is not None else up
     pot = root = root_index = None
-    if p_.pot and up_vec is not None:
+    if p_.pot and soil is not None:
+        pot = classify_pot_and_soil(pts, cloud.colors, classes, soil)
+    elif p_.pot and up_vec is not None:
         pot = _pot_and_soil(cloud, pts, classes, up_vec, None if ground is None else ground[1], thr, p_)
     timings["pot"] = time.perf_counter() - t0
 
@@ -224,8 +227,10 @@ def isolate_plant(cloud, params: IsolateParams | None = None, up: np.ndarray | N
         if root_index is not None:
             root = pts[root_index].copy()
     timings["total"] = time.perf_counter() - t_all
-    return Isolation(classes, up=None if ground is None else ground[0].copy(),
-                     up_source=None if ground is None else "table", root=root,
+    scene_up, source = (ground[0], "table") if ground is not None else \
+        (soil.normal, "soil") if soil is not None else (None, None)
+    return Isolation(classes, up=None if scene_up is None else scene_up.copy(),
+                     up_source=source, root=root,
                      root_index=root_index, plane=None if ground is None else np.r_[ground[0], ground[1]],
                      pot=pot, params={**p_.to_dict(), "crop": None if crop is None else str(crop)},
                      timings=timings)
@@ -233,7 +238,8 @@ def isolate_plant(cloud, params: IsolateParams | None = None, up: np.ndarray | N
 
 def _analyse_samples(s: np.ndarray, p_: IsolateParams, up, timings: dict):
     """Steps 1-3 on the samples (M, 3): (classes (M,) uint8, ground (unit normal, d) or None,
-    the ground's inlier distance, the components' linking radius)."""
+    the soil (:class:`~leaffit_usd.isolate.soil.SoilDisc`, looked for when there is no ground) or
+    None, the ground's inlier distance, the components' linking radius)."""
     t0 = time.perf_counter()
     vp, voxel = voxel_down(s, int(min(p_.plane_voxels, len(s) / 4)))  # a voxel holds a few samples
     thr = p_.plane_threshold * voxel
@@ -243,6 +249,7 @@ def _analyse_samples(s: np.ndarray, p_: IsolateParams, up, timings: dict):
     t0 = time.perf_counter()
     edges = knn_graph(s, p_.link)
     ground = _choose_ground(s, planes, thr, voxel, edges, p_, up)
+    soil = find_soil(s, planes, thr, voxel, up) if ground is None and p_.pot else None
     scls = np.full(len(s), PLANT, np.uint8)
     off = np.ones(len(s), bool)
     if ground is not None:
@@ -261,7 +268,7 @@ def _analyse_samples(s: np.ndarray, p_: IsolateParams, up, timings: dict):
         scls[grp["far_members"]] = grp["far_cls"]
     timings["components"] = time.perf_counter() - t0
 
-    return scls, ground, thr, edges[2]
+    return scls, ground, soil, thr, edges[2]
 
 
 def _candidate_planes(vp: np.ndarray, thr: float, p_: IsolateParams) -> list:
