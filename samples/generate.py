@@ -34,6 +34,8 @@ from leaffit_usd.io_util import atomic_path
 from leaffit_usd.splats.cloud import SH_C0, GaussianCloud
 from leaffit_usd.splats.ply import write_ply
 
+from samples.capture import FLOATERS as CAPTURE_FLOATERS
+from samples.capture import LAYER_NOISE, POT_KINDS, REALISMS, LeafSites
 from samples.leaves import (KIND_SHAPES, SHAPES, LeafShapeParams, LeafSheet, make_outline,
                             make_sheet, vein_field)
 
@@ -64,7 +66,8 @@ class PlantSpec:
     habit : shrub (stem + branches + side shoots) | rosette (crown + long petioles) | cane
     height : approximate plant height, metres (canonical frame); None = random 0.3-1.2
     branches, side_shoots : counts; None = random
-    floaters : fraction of Gaussians that are floaters (label -1)
+    floaters : fraction of Gaussians that are floaters (label -1); None = 0.003 (ideal) or
+        ``samples.capture.FLOATERS`` (capture)
     surface_noise : typical std (metres) of blade Gaussians off the surface; each leaf draws its
         own level around it (x0.2..x3), 4 % of Gaussians get 4x that
     fuzz : fraction of blade Gaussians floating 0-8 mm off the surface (large, faint)
@@ -77,9 +80,16 @@ class PlantSpec:
     spots : fraction of leaves with a few brown spots (damage, age)
     global_frame : apply a random similarity (input frame != canonical frame)
     hard : marks a deliberately difficult plant (set automatically when overlap != none)
-    scene : capture-like: keep a pot, soil, a table top, clutter, a back wall and scene floaters
-        around the plant, as a real capture does (``samples.scene``; about as many Gaussians
-        again as ``gaussians``, GT label -2, their class in ``GroundTruth.scene_class``)
+    scene : the surroundings a capture keeps (GT label -2, their class in
+        ``GroundTruth.scene_class``): True = a pot, soil, a table top, clutter, a back wall and
+        scene floaters (``samples.scene``; about as many Gaussians again as ``gaussians``);
+        "pot" = a pot with soil and a few floaters round it, nothing else (a capture with the
+        background removed; ``samples.capture.make_pot_scene``, ~0.7x ``gaussians`` more);
+        False = the plant alone; None = False (ideal) or "pot" (capture)
+    realism : "ideal" (clean, nearly opaque discs on the surface) | "capture" (the statistics
+        of a trained 3DGS capture: faint logit-normal opacities, needles, thick discs with
+        noisy normals, 2-3 layers per leaf, edge fuzz, more floaters; ``samples.capture``)
+    pot : "ceramic" (white) | "terracotta" | "plastic"; None = drawn from the seed
     """
 
     kind: str = "elliptic"
@@ -93,7 +103,7 @@ class PlantSpec:
     height: float | None = None
     branches: int | None = None
     side_shoots: int | None = None
-    floaters: float = 0.003
+    floaters: float | None = None
     holes: float = 0.15
     surface_noise: float = 0.0006
     fuzz: float = 0.02
@@ -106,9 +116,24 @@ class PlantSpec:
     leaf_length: float | None = None
     global_frame: bool = True
     hard: bool = False
-    scene: bool = False
+    scene: bool | str | None = None
+    realism: str = "ideal"
+    pot: str | None = None
 
     def __post_init__(self):
+        if self.realism not in REALISMS:
+            raise ValueError(f"realism must be one of {REALISMS}, got {self.realism!r}")
+        if self.pot is not None and self.pot not in POT_KINDS:
+            raise ValueError(f"pot must be one of {POT_KINDS} or None, got {self.pot!r}")
+        capture = self.realism == "capture"
+        if self.scene is None:
+            self.scene = "pot" if capture else False
+        if self.scene not in (False, True, "pot"):
+            raise ValueError(f"scene must be False, True or 'pot', got {self.scene!r}")
+        if self.floaters is None:
+            self.floaters = CAPTURE_FLOATERS if capture else 0.003
+        if not 0 <= float(self.floaters) < 0.5:
+            raise ValueError(f"floaters must be a fraction in [0, 0.5), got {self.floaters}")
         if self.kind not in KINDS:
             raise ValueError(f"kind must be one of {KINDS}, got {self.kind!r}")
         if self.overlap not in OVERLAPS:
@@ -129,7 +154,13 @@ class PlantSpec:
             self.hard = True
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """The fields as a JSON-ready dict; ``realism`` and ``pot`` only when not at their
+        defaults (the ground truth of an ideal plant keeps the bytes it had before they existed)."""
+        d = dataclasses.asdict(self)
+        for name, default in (("realism", "ideal"), ("pot", None)):
+            if d[name] == default:
+                del d[name]
+        return d
 
     @staticmethod
     def from_dict(d: dict) -> "PlantSpec":
@@ -752,7 +783,8 @@ def _smooth_noise(p: np.ndarray, rng, n_waves=6, scale=1.0) -> np.ndarray:
 def _sample_leaf(leaf: _Leaf, n: int, rng, glossy: float, variegation: float = 0.0,
                  noise: float = 0.0006, fuzz_fraction: float = 0.02):
     """Gaussians on one blade, canonical frame: positions, scales (in-plane, in-plane, normal),
-    rotation matrices (N, 3, 3) [columns = axes], RGB, opacities, SH-rest noise level."""
+    rotation matrices (N, 3, 3) [columns = axes], RGB, opacities, SH-rest noise level and the
+    samples' ``LeafSites`` (normal, outward direction, distance to the margin)."""
     sh = leaf.sheet
     Vw = leaf.world()
     F = sh.faces
@@ -847,7 +879,17 @@ def _sample_leaf(leaf: _Leaf, n: int, rng, glossy: float, variegation: float = 0
     opa = np.where(rng.uniform(size=n) < 0.85, rng.uniform(0.8, 0.999, n), rng.uniform(0.03, 0.7, n))
     opa = np.where(fuzz, rng.uniform(0.02, 0.3, n), opa)
     rest_sd = 0.01 + 0.05 * glossy * (~back)
-    return pos, scales, R, col, opa, rest_sd
+    # where each sample sits (for capture realism): outward along the polar ray, in 3D
+    inv_col1 = np.stack([-E2[:, 0, 1], E2[:, 0, 0]], 1) / det[:, None]
+    out2 = np.einsum("nk,nkd->nd", b, sh.uv2d[tri]) - sh.outline.centre
+    out2 /= np.maximum(np.linalg.norm(out2, axis=1, keepdims=True), 1e-12)
+    J0 = np.einsum("fdk,fk->fd", E3, inv_col0)[fi]
+    J1 = np.einsum("fdk,fk->fd", E3, inv_col1)[fi]
+    outward = out2[:, :1] * J0 + out2[:, 1:] * J1
+    outward -= np.einsum("nd,nd->n", outward, nrm)[:, None] * nrm
+    outward /= np.maximum(np.linalg.norm(outward, axis=1, keepdims=True), 1e-12)
+    sites = LeafSites(normal=nrm, outward=outward, to_margin=np.maximum(d_edge, 0.0))
+    return pos, scales, R, col, opa, rest_sd, sites
 
 
 def _tube_frames(t):
@@ -995,6 +1037,8 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
     Deterministic: the same (spec, seed) gives bit-identical arrays.
     """
     axes, leaves, habit, pairs, (rng, rng_frame, rng_scene) = _structure(spec, seed)
+    capture = spec.realism == "capture"
+    leaf_sites: list[LeafSites] = []
     L = len(leaves)
     n_total = int(spec.gaussians)
     n_float = int(round(spec.floaters * n_total))
@@ -1037,8 +1081,10 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
         parts_op.append(op); parts_rest.append(np.full(len(pos), 0.01)); parts_lab.append(np.zeros(len(pos), np.int32))
         parts_pet.append(np.full(len(pos), getattr(a, "leaf", 0), np.int32))
     for lf, c in zip(leaves, cnt_l):
-        pos, sc, R, col, op, rest = _sample_leaf(lf, int(c), rng, spec.glossy, spec.variegation,
-                                                   spec.surface_noise, spec.fuzz)
+        noise = spec.surface_noise * (LAYER_NOISE if capture else 1.0)
+        pos, sc, R, col, op, rest, site = _sample_leaf(lf, int(c), rng, spec.glossy,
+                                                         spec.variegation, noise, spec.fuzz)
+        leaf_sites.append(site)
         parts_pos.append(pos); parts_sc.append(sc); parts_R.append(R); parts_col.append(col)
         parts_op.append(op); parts_rest.append(rest); parts_lab.append(np.full(len(pos), lf.label, np.int32))
         parts_pet.append(np.zeros(len(pos), np.int32))
@@ -1079,13 +1125,30 @@ def make_plant(spec: PlantSpec, seed: int) -> tuple[GaussianCloud, GroundTruth]:
     h_c = float(hz.max() - min(hz.min(), 0.0))
     k = float(np.clip(h_c, 0.3, 1.2) / h_c)
     pos, scales = pos * k, scales * k
+    if capture:  # trained-capture statistics (own random stream: the ideal draws are unchanged)
+        from samples.capture import capture_rng, realise_plant
+
+        rng_capture = capture_rng(seed)
+        sites = LeafSites(*(np.concatenate([getattr(x, f) for x in leaf_sites]) * (k if f == "to_margin" else 1)
+                            for f in ("normal", "outward", "to_margin")))
+        pos, scales, R, opa = realise_plant(pos, scales, R, opa, labels, sites, h_c * k, rng_capture)
     scene_info = None
     scene_class = None
     if spec.scene:  # capture-like surroundings (own random stream: the plant is unchanged)
-        from samples.scene import make_scene
+        if spec.scene == "pot":
+            from samples.capture import make_pot_scene
 
-        s_pos, s_sc, s_R, s_col, s_op, s_cls, scene_info = make_scene(
-            pos[labels >= 0], h_c * k, int(spec.gaussians), rng_scene)
+            s_pos, s_sc, s_R, s_col, s_op, s_cls, scene_info = make_pot_scene(
+                h_c * k, int(spec.gaussians), rng_scene, spec.pot)
+        else:
+            from samples.scene import make_scene
+
+            s_pos, s_sc, s_R, s_col, s_op, s_cls, scene_info = make_scene(
+                pos[labels >= 0], h_c * k, int(spec.gaussians), rng_scene)
+        if capture:
+            from samples.capture import realise_scene
+
+            s_sc, s_R, s_op = realise_scene(s_sc, s_R, s_op, s_cls, rng_capture)
         scene_class = np.concatenate([np.where(labels >= 0, 0, 5), s_cls]).astype(np.int8)
         pos, scales = np.vstack([pos, s_pos]), np.vstack([scales, s_sc])
         R = np.concatenate([R, s_R])
@@ -1220,7 +1283,22 @@ def capture_suite(gaussians: int = 60_000) -> list[tuple[str, PlantSpec, int]]:
         ("capture_ruby_leaf", preset("ruby_leaf", gaussians=g, scene=True), 24),
         ("capture_cotton_rose", preset("cotton_rose", gaussians=g, scene=True), 25),
         ("capture_lucky_bamboo", preset("lucky_bamboo", gaussians=g, scene=True), 26),
+        *((n, s, sd) for n, (s, sd) in capture_realism_plants(int(0.6 * g)).items()),
     ]
+
+
+def capture_realism_plants(gaussians: int = 36_000) -> dict[str, tuple[PlantSpec, int]]:
+    """Plants with capture realism (``realism="capture"``: trained-3DGS opacities and shapes,
+    layered leaves, edge fuzz, a pot with soil and no other surroundings): name -> (spec, seed).
+    ``gaussians`` counts the plant; the pot and soil add about 0.7x that (36k: ~61k in all)."""
+    g = int(gaussians)
+    return {
+        "rubber_tree_capture": (preset("rubber_tree", gaussians=g, realism="capture", pot="ceramic"), 31),
+        "green_pepper_capture": (preset("green_pepper", gaussians=g, realism="capture",
+                                        pot="terracotta"), 32),
+        "golden_pothos_capture": (preset("golden_pothos", gaussians=g // 2, realism="capture",
+                                         pot="terracotta"), 33),
+    }
 
 
 #: The sample plants of the demo and the tests: name -> (spec, seed). Not in git: ``make``
@@ -1234,6 +1312,7 @@ def committed_plants() -> dict[str, tuple[PlantSpec, int]]:
         "overlap": (PlantSpec(kind="elliptic", leaves=10, overlap="all", gaussians=60_000,
                               sh_degree=0, leaf_length=0.14, height=0.55), 12),
         "pothos_sh3": (preset("golden_pothos", gaussians=15_000, sh_degree=3), 3),
+        **{n: v for n, v in capture_realism_plants().items() if n != "golden_pothos_capture"},
     }
 
 
@@ -1262,6 +1341,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--scene", action="store_true",
                    help="capture-like: keep a pot, soil, a table, clutter and a back wall (label -2; "
                         "their classes in gt.scene_class); with --suite: capture_suite()")
+    p.add_argument("--realism", choices=REALISMS,
+                   help="ideal (default: clean opaque discs) | capture: the statistics of a trained "
+                        "3DGS capture (faint opacities, needles, layered leaves, edge fuzz, more "
+                        "floaters, a pot with soil; samples.capture)")
+    p.add_argument("--pot", choices=POT_KINDS, help="pot of --scene / capture realism (default: from the seed)")
+    p.add_argument("--bare", action="store_true", help="with --realism capture: no pot and soil")
     p.add_argument("--out", default=".", help="output directory")
     p.add_argument("--name", help="file stem (default: preset or kind + seed)")
     p.add_argument("--suite", action="store_true", help="write every benchmark_suite() plant")
@@ -1297,6 +1382,12 @@ def main(argv=None) -> int:
             over["global_frame"] = False
         if args.scene:
             over["scene"] = True
+        elif args.bare:
+            over["scene"] = False
+        if args.realism:
+            over["realism"] = args.realism
+        if args.pot:
+            over["pot"] = args.pot
         try:
             spec = preset(args.preset, **over) if args.preset else PlantSpec(**over)
         except (ValueError, TypeError) as e:

@@ -145,11 +145,13 @@ def soil_gaussians(geo: PotGeometry, m: int, rng: np.random.Generator, opacity,
     return pos, sc, R, colour(m, rng), opacity(m), SOIL
 
 
-def make_scene(plant_pos: np.ndarray, height: float, n: int, rng: np.random.Generator):
+def make_scene(plant_pos: np.ndarray, height: float, n: int, rng: np.random.Generator,
+               pot: str | None = None):
     """Gaussians of the surroundings of a plant (canonical frame).
 
     plant_pos : (M, 3) the plant's Gaussians (canonical, metres, root at 0, +Z up)
     height : plant height (m); n : about how many scene Gaussians to make
+    pot : "terracotta" | "plastic" | "ceramic", None = drawn from ``rng``
     Returns (pos (n', 3), scales (n', 3), R (n', 3, 3), colour (n', 3), opacity (n',),
     classes (n',) int32 in 1..5) and a dict describing the scene (pot radii, heights, table).
     """
@@ -161,6 +163,7 @@ def make_scene(plant_pos: np.ndarray, height: float, n: int, rng: np.random.Gene
     z_rim = z_soil + rng.uniform(0.01, 0.04)
     z_bot = z_rim - ph
     kind = ("terracotta", "plastic", "ceramic")[int(rng.integers(3))]
+    kind = pot or kind  # drawn either way: the same stream whether or not the pot is chosen
     pot_col = np.array(_POT_COLOURS[kind])
     # horizontal reach of the plant (clutter stays clear of it)
     reach = float(np.quantile(np.hypot(plant_pos[:, 0], plant_pos[:, 1]), 0.98))
