@@ -4,9 +4,9 @@
 
 Rows: the real capture ``../shared/real/houseplant.splat`` ("Houseplant", Marcel Padilla,
 CC-BY-4.0; skipped with a message when ``../shared/real`` is absent), the generator's capture
-realism (``PlantSpec(realism="capture")``: the capture plants of ``samples.capture_suite()``
-and ``samples.committed_plants()``) and the ideal sample plants (``committed_plants()``), each
-generated from its spec and seed (no file needed).
+realism (``PlantSpec(realism="capture")``: ``samples.generate.capture_realism_plants()``, also
+in ``capture_suite()``) and the ideal sample plants (``committed_plants()``), each generated
+from its spec and seed (no file needed).
 
 Columns (over all Gaussians of the file, as issue 35's table):
 
@@ -144,12 +144,9 @@ def generated_rows(jobs):
 
 
 def jobs_capture():
-    from samples.generate import capture_suite, committed_plants
+    from samples.generate import capture_realism_plants
 
-    jobs = [(n, s, sd) for n, (s, sd) in committed_plants().items() if s.realism == "capture"]
-    names = {n for n, _, _ in jobs}
-    jobs += [(n, s, sd) for n, s, sd in capture_suite() if s.realism == "capture" and n not in names]
-    return jobs
+    return [(n, s, sd) for n, (s, sd) in capture_realism_plants().items()]
 
 
 def jobs_ideal():

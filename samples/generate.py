@@ -1312,7 +1312,6 @@ def committed_plants() -> dict[str, tuple[PlantSpec, int]]:
         "overlap": (PlantSpec(kind="elliptic", leaves=10, overlap="all", gaussians=60_000,
                               sh_degree=0, leaf_length=0.14, height=0.55), 12),
         "pothos_sh3": (preset("golden_pothos", gaussians=15_000, sh_degree=3), 3),
-        **{n: v for n, v in capture_realism_plants().items() if n != "golden_pothos_capture"},
     }
 
 

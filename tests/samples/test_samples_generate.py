@@ -53,7 +53,14 @@ def _check_gt(cloud, gt: GroundTruth, n_leaves: int):
     n = len(cloud)
     assert gt.labels.shape == (n,) and gt.labels.dtype == np.int32
     assert gt.petiole_of.shape == (n,)
-    assert set(np.unique(gt.labels)) <= set(range(-1, n_leaves + 1))
+    if gt.scene_class is None:
+        assert set(np.unique(gt.labels)) <= set(range(-1, n_leaves + 1))
+    else:  # surroundings: label -2, their class 1..5; the plant class 0, its floaters 5
+        assert set(np.unique(gt.labels)) <= set(range(-2, n_leaves + 1))
+        assert gt.scene_class.shape == (n,)
+        np.testing.assert_array_equal(gt.scene_class[gt.labels >= 0], 0)
+        np.testing.assert_array_equal(gt.scene_class[gt.labels == -1], 5)
+        assert set(np.unique(gt.scene_class[gt.labels == -2])) <= {1, 2, 3, 4, 5}
     present = set(np.unique(gt.labels[gt.labels > 0]))
     assert present == set(range(1, n_leaves + 1)), "every leaf label must be present"
     assert (gt.labels == 0).any() and (gt.labels == -1).any()
@@ -292,6 +299,6 @@ def test_committed_plant_matches_its_ground_truth(name):
     spec, seed = committed_plants()[name]
     meta = json.loads(gt.spec)
     assert meta["seed"] == seed and PlantSpec.from_dict(meta["spec"]) == spec
-    assert len(cloud) == spec.gaussians and cloud.sh_degree == spec.sh_degree
+    assert (gt.labels != -2).sum() == spec.gaussians and cloud.sh_degree == spec.sh_degree
     _check_gt(cloud, gt, spec.leaves)
     assert _mesh_distance(cloud, gt, np.random.default_rng(1), per_leaf=100) < MESH_DIST_REL
