@@ -22,7 +22,8 @@ pot-coloured, see ``real_classes``), on 3000 random probes whose 0.8 % H neighbo
   (stacked layers and off-surface noise make it thick);
 * ``|cos n|``: the median |cos| between the probe's shortest axis and the patch normal, and
   ``> 0.8``: the share above 0.8 (how well the shortest axis gives the normal);
-* ``coverage``: median areal density x pi x the median largest x middle axis product;
+* ``coverage``: median areal density x pi x the median largest x middle axis product (the
+  areal density itself, Gaussians per H^2 of sheet over all its layers, is in the JSON);
 * ``isolated``: the share of all Gaussians whose 8th neighbour is farther than 5x the median;
 * ``pot+soil``: the share of pot and soil Gaussians, with the median soil and pot colours.
 
@@ -94,6 +95,7 @@ def sheet_stats(cloud, plant: np.ndarray, height: float, rng: np.random.Generato
             "shortest_axis_cos_above_0.8": round(float((cosn > 0.8).mean()), 3) if len(cosn) else None,
             "coverage": round(float(np.median(dens) * np.pi * np.median(s[idx, 0] * s[idx, 1])), 2)
             if dens else None,
+            "areal_density_per_H2": round(float(np.median(dens)) * height * height) if dens else None,
             "axes_over_H": [round(float(v) / height, 5) for v in np.median(s[idx], 0)],
             "isolated": round(float((d8 > 5 * np.median(d8)).mean()), 4)}
 
@@ -198,7 +200,8 @@ def main(argv=None) -> int:
     for group in ("real", "capture"):
         for row in result[group] or []:
             print(f"{row['name']}: pot colour {row['pot_colour_median']}, soil colour "
-                  f"{row['soil_colour_median']}, axes / H {row['axes_over_H']}")
+                  f"{row['soil_colour_median']}, axes / H {row['axes_over_H']}, Gaussians per "
+                  f"H^2 of sheet {row['areal_density_per_H2']}")
     result["machine"] = machine_info()
     atomic_write_bytes(args.out, json.dumps(result, indent=1).encode())
     print(f"wrote {args.out}")

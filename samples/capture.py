@@ -12,9 +12,11 @@ H ~ 0.7 of its units; the plant / soil / pot split below is by height and colour
 statistic (real capture)            value                       how this mode matches it
 ==================================  ==========================  =================================
 opacity                             logit-normal: logit mean    opacity = sigmoid(N(mu, sd)) per
-                                    -1.40, sd 1.17 (median      class: plant (-1.55, 1.08), soil
-                                    0.20, 23.5 % below 0.1)     (-0.91, 1.11), pot (-1.72, 1.25),
-                                                                the real classes' own fits
+                                    -1.40, sd 1.17 (median      class, the real classes' fits:
+                                    0.20, 23.5 % below 0.1);    plant (-1.45, 1.08; mean raised
+                                    plant -1.55 sd 1.08, soil   0.1 for the faint floaters and
+                                    -0.91 / 1.11, pot -1.72 /   edge fuzz), soil (-0.91, 1.11),
+                                    1.25                        pot (-1.72, 1.25)
 opacity vs size                     weak: corr(log size,        the same coupling: the logit's
                                     logit) -0.08 plant, -0.20   normal draw is correlated -0.08 /
                                     soil; the largest 20 % a    -0.20 with the class's standard-
@@ -25,25 +27,33 @@ largest / middle axis               ln ratio ~ Gamma(k 2,       the same Gamma; 
 middle / smallest axis              ln ratio ~ Gamma(k 1.5):    the same Gamma, scale 1.05 plant
 (flatness)                          median 3.5 plant, 2.0       (median 3.5), 0.58 soil (2.0),
                                     soil, 2.6 pot, 2.8 all      0.82 pot (2.6)
-shortest axis vs the local          |cos| median 0.98, 0.90     a roll about the long axis of
-surface normal (PCA of a 0.8 %      above 0.8; 0.87 at          N(0, 0.38 / sqrt(ln flatness))
-H patch)                            flatness < 1.5, 0.99 > 8    rad and a 0.06 rad tilt of the
+shortest axis vs the local          |cos| median 0.970, 0.82    a roll about the long axis of
+surface normal (PCA of a 0.8 %      above 0.8; the lower the    N(0, 0.36 / sqrt(ln flatness))
+H patch)                            flatness the worse (0.87    rad (12 %: uniform, the normal
+                                    below 1.5, 0.99 above 8)    lost) and a 0.06 rad tilt of the
                                                                 long axis out of the surface
-sheet thickness (std of the         1.0e-3 H (median over       2-3 layers per leaf (half each)
-normal offsets in a 0.8 % H         sheet-like patches)         1.1e-3 H +- 20 % apart, each with
+sheet thickness (std of the         0.94e-3 H (median over      2-3 layers per leaf (half each)
+normal offsets in a 0.8 % H         sheet-like patches)         1.0e-3 H +- 20 % apart, each with
 patch)                                                          half the ideal surface noise
-coverage (areal density x pi x      about 4                     in-plane area of the ideal disc
-largest x middle axis)                                          x COVERAGE_FACTOR
-floaters                            0.6 % with their 8th        1.5 % plant floaters (label -1)
-                                    neighbour > 5x the median   and 1 % of the plant count of
-                                    distance                    floaters round the pot (class 5)
-pot and soil                        ~40 % of the Gaussians;     pot 0.28 x, soil 0.40 x the
-                                    pot (white ceramic, median  plant's count; rim-heavy pot (the
-                                    RGB 0.97 0.91 0.86) mostly  wall 35 %); ceramic 0.95 0.90
-                                    at its rim, the wall a few  0.85, soil 0.145 0.051 0.039 x
-                                    large faint Gaussians; soil  exp(N(0, 0.6)), 3 % perlite
-                                    dark (median 0.145 0.051
-                                    0.039), denser than leaves
+                                                                (1.0-1.1e-3 H measured)
+coverage (areal density x pi x      6.3; axes 0.0080, 0.0023,   in-plane area of the ideal disc
+largest x middle axis)              0.0006 H (medians)          x 2 (coverage 5.6-6.7; axes
+                                                                0.0075, 0.0022, 0.0006 H on the
+                                                                36k rubber tree)
+Gaussians per leaf layer            1.2e5 per H^2 of sheet (all the ideal density (the plant's
+                                    layers; ~5e4 per layer)     count): 1.3-1.4e5 per H^2 at 36k
+floaters                            0.6 % with their 8th        0.7 % plant floaters (label -1;
+                                    neighbour > 5x the median   the ideal 0.3 %) and 1 % of the
+                                    distance                    plant count round the pot (label
+                                                                -2, class 5): 0.8 % isolated
+pot and soil                        34-42 % of the Gaussians;   pot 0.28 x, soil 0.40 x the
+                                    pot (white ceramic, median  plant's count (40 %); rim-heavy
+                                    RGB 0.97 0.91 0.86) mostly  pot (the outer wall 35 %);
+                                    at its rim, the wall a few  ceramic base 1.07 1.01 0.95
+                                    large faint Gaussians; soil (shaded, clipped: median 0.96
+                                    dark (median 0.145 0.051    0.91 0.86), soil 0.145 0.051
+                                    0.039), denser than leaves  0.039 x exp(N(0, 0.6)), 3 %
+                                                                perlite
 ==================================  ==========================  =================================
 
 Edge fuzz (Gaussians spilling off the leaf margin) cannot be measured without leaf labels; the
@@ -61,7 +71,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from samples.scene import (FLOATER, POT, SOIL, PotGeometry, _frame_from_normal, _unit,
+from samples.scene import (FLOATER, POT, SOIL, PotGeometry, frame_from_normal, unit,
                            pot_gaussians, soil_gaussians)
 
 REALISMS = ("ideal", "capture")
@@ -220,7 +230,7 @@ def make_pot_scene(height: float, n: int, rng: np.random.Generator, kind: str | 
     hi = np.array([1.3 * r_top, 1.3 * r_top, z_rim + 0.1 * H])
     fpos = lo + rng.uniform(0, 1, (m, 3)) * (hi - lo)
     fsc = np.exp(rng.normal(np.log(0.004), 0.6, (m, 3)))
-    fR = _frame_from_normal(_unit(rng.normal(size=(m, 3))))
+    fR = frame_from_normal(unit(rng.normal(size=(m, 3))))
     parts.append((fpos, fsc, fR, rng.uniform(0.2, 0.8, (m, 3)), rng.uniform(0.02, 0.5, m), FLOATER))
     cat = [np.concatenate([p[i] for p in parts]) for i in range(5)]
     cls = np.concatenate([np.full(len(p[0]), p[5], np.int32) for p in parts])

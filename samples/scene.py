@@ -28,7 +28,7 @@ _POT_COLOURS = {"terracotta": (0.70, 0.38, 0.22), "plastic": (0.18, 0.18, 0.19),
                 "ceramic": (0.86, 0.85, 0.82)}
 
 
-def _frame_from_normal(nrm: np.ndarray) -> np.ndarray:
+def frame_from_normal(nrm: np.ndarray) -> np.ndarray:
     """(n, 3) unit normals -> (n, 3, 3) rotations whose third column is the normal."""
     a = np.where(np.abs(nrm[:, 2:3]) < 0.9, [[0, 0, 1.0]], [[1.0, 0, 0]])
     e1 = np.cross(nrm, a)
@@ -36,7 +36,7 @@ def _frame_from_normal(nrm: np.ndarray) -> np.ndarray:
     return np.stack([e1, np.cross(nrm, e1), nrm], axis=2)
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
+def unit(v: np.ndarray) -> np.ndarray:
     return v / np.linalg.norm(v, axis=1, keepdims=True)
 
 
@@ -45,7 +45,7 @@ def _flat(pos, nrm, spacing, rng, thin=0.12):
     n = len(pos)
     s1 = spacing * 0.6 * np.exp(rng.normal(0, 0.25, n))
     s2 = s1 * rng.uniform(0.5, 1.0, n)
-    return np.stack([s1, s2, thin * np.sqrt(s1 * s2)], 1), _frame_from_normal(nrm)
+    return np.stack([s1, s2, thin * np.sqrt(s1 * s2)], 1), frame_from_normal(nrm)
 
 
 WALL = 0.012  # pot wall thickness, m
@@ -260,7 +260,7 @@ def make_scene(plant_pos: np.ndarray, height: float, n: int, rng: np.random.Gene
     pos = np.concatenate(blobs)[:m]
     mm = len(pos)
     sc = np.exp(rng.normal(np.log(0.02 * H), 0.4, (mm, 3)))
-    R = _frame_from_normal(_unit(rng.normal(size=(mm, 3))))
+    R = frame_from_normal(unit(rng.normal(size=(mm, 3))))
     add(pos, sc, R, rng.uniform(0.1, 0.9, (mm, 3)), rng.uniform(0.3, 0.9, mm), BACKGROUND)
 
     # ---- floaters over the captured volume -------------------------------------------------------
@@ -269,7 +269,7 @@ def make_scene(plant_pos: np.ndarray, height: float, n: int, rng: np.random.Gene
     hi = np.array([cx + 1.3 * hx, y_wall, z_bot + 1.8 * H])
     pos = lo + rng.uniform(0, 1, (m, 3)) * (hi - lo)
     sc = np.exp(rng.normal(np.log(0.004), 0.6, (m, 3)))
-    R = _frame_from_normal(_unit(rng.normal(size=(m, 3))))
+    R = frame_from_normal(unit(rng.normal(size=(m, 3))))
     add(pos, sc, R, rng.uniform(0.2, 0.8, (m, 3)), rng.uniform(0.02, 0.5, m), FLOATER)
 
     cat = [np.concatenate([p[i] for p in parts]) for i in range(6)]
