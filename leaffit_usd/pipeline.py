@@ -220,7 +220,8 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
                  if not o.keep_scene else "isolation off (--keep-scene)"):
         # the plant in an order of positions alone, so the asset does not depend on the file's
         # order (a converter may sort the splats, e.g. by Morton code)
-        cloud, iso = isolate_stage(cloud_in, o.keep_scene, o.crop, o.up, o.isolate, canonical=True)
+        cloud, iso = isolate_stage(cloud_in, o.keep_scene, o.crop, o.up, o.isolate, canonical=True,
+                                   root=o.root, root_index=o.root_index)
     with T.stage("frame", "choosing the frame (up axis, root)"):
         choice = frame_from_isolation(cloud, iso, o.up, o.root, o.root_index, cloud=cloud_in)
         frame, root_index = choice.frame, choice.root_index

@@ -112,7 +112,7 @@ def run(args) -> int:
     t1 = time.perf_counter()
     fo = _args.frame_options(args)
     cloud, iso = isolate_stage(cloud_in, getattr(args, "keep_scene", False), getattr(args, "crop", None),
-                               fo["up"])
+                               fo["up"], root=fo["root"], root_index=fo["root_index"])
     t_iso = time.perf_counter() - t1
     choice = frame_from_isolation(cloud, iso, cloud=cloud_in, **fo)
     frame, root = choice.frame, choice.root_index

@@ -65,7 +65,8 @@ class SoilDisc:
         ``normal . x + d = 0`` (heights above the soil: ``x . normal + d``)
     centre : (3,) float64, the disc's centre on the plane; radius : its radius (90th percentile
         of the patch's distances from the centre: the pot's inner radius at the soil)
-    thr : the plane's inlier distance; patch : patch samples (for the log)
+    thr : the soil's surface layer, half its thickness (4 robust standard deviations of its patch
+        samples' heights, between 0.2 and 1 x the RANSAC inlier distance); patch : patch samples
     """
 
     normal: np.ndarray
@@ -136,8 +137,11 @@ def find_soil(s: np.ndarray, planes: list, thr: float, voxel: float, up=None) ->
                 continue
             if best is None or len(pxy) > best.patch:
                 centre = basis @ c - n_ * (d_ + float(n_ @ (basis @ c)))
+                hp = h0[on[in_patch]]  # the soil's own roughness: its surface layer's thickness
+                rough = 4 * 1.4826 * float(np.median(np.abs(hp - np.median(hp))))
                 best = SoilDisc(normal=np.asarray(n_, np.float64), d=float(d_), centre=centre,
-                                radius=radius, thr=float(thr), patch=int(len(pxy)))
+                                radius=radius, thr=float(np.clip(rough, 0.2 * thr, thr)),
+                                patch=int(len(pxy)))
     if best is not None:
         log.debug("soil: n=(%.3f %.3f %.3f), radius %.4g, %d patch samples", *best.normal,
                   best.radius, best.patch)

@@ -10,7 +10,7 @@ import numpy as np
 
 from leaffit_usd.errors import InputFileError, ParameterError
 from leaffit_usd.geometry.sampling import canonical_order
-from leaffit_usd.isolate.result import BACKGROUND, Isolation
+from leaffit_usd.isolate.result import BACKGROUND, FLOATER, GROUND, PLANT, POT, SOIL, Isolation
 from leaffit_usd.isolate.scene import Crop, IsolateParams, isolate_plant
 from leaffit_usd.splats.frame import make_frame
 
@@ -29,8 +29,14 @@ def _user_up(up):
     return u / np.linalg.norm(u)
 
 
+#: isolation is undone when it would remove more than this share of the Gaussians it did not
+#: explain by a surface (the ground plane, the pot or the soil), or of those nearest the user's root
+MAX_UNEXPLAINED = 0.5
+ROOT_NEIGHBOURS = 64
+
+
 def isolate_stage(cloud, keep_scene: bool = False, crop=None, up=None, params: IsolateParams | None = None,
-                  canonical: bool = False):
+                  canonical: bool = False, root=None, root_index=None):
     """Plant isolation for a command: ``(plant cloud, Isolation)``.
 
     cloud : GaussianCloud, input frame; keep_scene : skip the automatic classification (the
@@ -52,7 +58,8 @@ def isolate_stage(cloud, keep_scene: bool = False, crop=None, up=None, params: I
         iso = Isolation(classes, enabled=False,
                         params={"keep_scene": True, "crop": None if crop is None else str(crop)})
     else:
-        iso = isolate_plant(cloud, params, up=_user_up(up), crop=crop)
+        iso = keep_the_plant(cloud, isolate_plant(cloud, params, up=_user_up(up), crop=crop),
+                             root, root_index)
     log.info("      isolation: %s", iso.describe())
     if iso.up is not None:
         log.info("      up from the %s: (%.3f, %.3f, %.3f)", iso.up_source, *iso.up)
@@ -64,6 +71,47 @@ def isolate_stage(cloud, keep_scene: bool = False, crop=None, up=None, params: I
         plant = np.flatnonzero(keep)
         return cloud.subset(plant[canonical_order(cloud.means[plant])]), iso
     return (cloud if keep.all() else cloud.subset(keep)), iso
+
+
+def keep_the_plant(cloud, iso: Isolation, root=None, root_index=None) -> Isolation:
+    """``iso``, or the capture kept whole (every Gaussian PLANT but those outside the crop) with
+    one warning line naming ``--keep-scene``, when isolation would lose the plant:
+
+    * it removes, as background objects or floaters, more than ``MAX_UNEXPLAINED`` of the
+      Gaussians that no surface explains (all but the ground, pot and soil): a plant of uneven
+      density broken into pieces by its holes, not a plant among objects;
+    * or it removes most (``MAX_UNEXPLAINED``) of the ``ROOT_NEIGHBOURS`` Gaussians nearest the
+      root the user clicked (root : (3,) input frame, or root_index : a file index).
+    """
+    cls = np.asarray(iso.classes)
+    cropped = np.zeros(len(cls), bool)
+    if iso.params.get("crop"):
+        from leaffit_usd.isolate.scene import Crop
+        cropped = ~Crop.parse(iso.params["crop"]).contains(cloud.means)
+    surface = np.isin(cls, (GROUND, POT, SOIL))
+    loose = np.isin(cls, (BACKGROUND, FLOATER)) & ~cropped
+    why = None
+    if loose.sum() > MAX_UNEXPLAINED * max(int((~surface & ~cropped).sum()), 1):
+        why = (f"it would remove {int(loose.sum()):,} of the {int((~surface & ~cropped).sum()):,} "
+               "Gaussians that are not ground, pot or soil as background or floaters")
+    point = None
+    if root is not None:
+        point = np.asarray(root, np.float64)
+    elif root_index is not None:
+        pos = np.flatnonzero(np.asarray(cloud.file_index) == int(root_index))
+        point = np.asarray(cloud.means[pos[0]], np.float64) if len(pos) else None
+    if why is None and point is not None and len(cls):
+        from leaffit_usd.geometry.knn import knn
+        _, near = knn(cloud.means, ROOT_NEIGHBOURS, point[None])
+        if (cls[near[0]] != PLANT).mean() > MAX_UNEXPLAINED:
+            why = "it would remove most of what lies at the root you gave"
+    if why is None:
+        return iso
+    log.warning("isolation kept the whole capture: %s; pass --keep-scene to skip isolation, or "
+                "--crop to give the plant's region", why)
+    classes = np.where(cropped, BACKGROUND, PLANT).astype(np.uint8)
+    return Isolation(classes, enabled=True, params={**iso.params, "kept_whole": why},
+                     timings=iso.timings)
 
 
 def frame_from_isolation(plant, iso, up=None, root=None, root_index=None, cloud=None):
