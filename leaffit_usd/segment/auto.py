@@ -165,6 +165,21 @@ class SegmentParams:
         size below the saddle are two leaves met at their bases (0.15)
     min_leaf_fraction : smallest leaf, as a fraction of the domain points (0.002)
     attach_link : attachment points within this many median spacings are one stalk's entry (3.0)
+    piece_thick : a piece whose normals wrap around (``tube_ratio``) is a tube only when its
+        positions say so too: the median over its points of the neighbourhood's thickness
+        lambda_3 / lambda_2 (position covariance within 2 and 4 x ``stalk_radius``, the larger)
+        exceeds this, or it is ``tube_elongation`` times longer along its axis than across
+        (0.2, in [0, 1]; measured: sheets, curled or not, 0.02-0.12 on the maize and tomato
+        scans of ../shared/real and on the generated leaves, stems 0.4-0.8). Why: a leaf curled
+        along its length, a cupped or folded blade, turns its normals as a tube does, and on
+        real scans whole leaves went to the stem that way (benchmarks/real_scans.py)
+    tube_elongation : length along the wrap axis over the extent across it above which such a
+        piece is a tube (2.0, >= 1: a stem segment is longer than it is thick; a curled leaf is
+        only its width long on that axis)
+    stem_gap : a tube piece of leaf size and thick across (``piece_thick``) within this many
+        ``stalk_radius`` of the stem along the surface graph continues the stem (4.0, >= 0;
+        0 = only the root's piece): where a scanner sees a stem from one side or its points
+        are noisy, the tube test drops out for a stretch and the stem above was left a "blade"
     max_gaussians : above this many Gaussians the blades method runs on a random subset of this
         many (a seeded sample in position order, so free of file order) and every other Gaussian
         takes the label of its nearest one (120000; 0 = never). Why: the method was designed and
@@ -209,6 +224,9 @@ class SegmentParams:
     palm_fraction: float = 0.15
     min_leaf_fraction: float = 0.002
     attach_link: float = 3.0
+    piece_thick: float = 0.2
+    tube_elongation: float = 2.0
+    stem_gap: float = 4.0
     max_gaussians: int = 120_000
 
     @classmethod
@@ -250,8 +268,12 @@ class SegmentParams:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ParameterError(name, "a positive number", v)
+        for name, lo in {"tube_elongation": 1.0, "stem_gap": 0.0}.items():
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= lo):
+                raise ParameterError(name, f"a number >= {lo}", v)
         for name in ("stalk_ratio", "tangent_sin", "normal_cos", "tube_ratio", "palm_fraction",
-                     "min_leaf_fraction"):
+                     "min_leaf_fraction", "piece_thick"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0 <= v <= 1):
                 raise ParameterError(name, "a number in [0, 1]", v)

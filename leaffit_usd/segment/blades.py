@@ -25,7 +25,9 @@ Steps (working frame: root at the origin, +Z up, plant height 1; radii in those 
    ``stalk_radius`` has its second eigenvalue above ``stalk_ratio`` x its first (a sheet: ~0; a
    tube: ~1), smoothed by two rounds of majority vote over the graph. Only the tube network
    holding the root's nearest tube point (lowest heat-method ``D_r``) is stem: tube-like spots on
-   a curled blade that do not connect to the stem stay blade.
+   a curled blade that do not connect to the stem stay blade. Where the tube test drops out
+   for a stretch (a scanner sees one side of a stem; noisy normals), a tube piece thick across
+   within ``stem_gap`` stalk radii of the stem along the graph continues it.
 3. **Blades** are the connected components of the sheet points. A blade touches the stem where
    its petiole (or petiolule, or a sessile base) enters: the *attachments*, sheet points with a
    stem neighbour, clustered within ``attach_link`` spacings. A blade with several attachments
@@ -40,9 +42,17 @@ Steps (working frame: root at the origin, +Z up, plant height 1; radii in those 
    they are two leaves. Lobes of one blade meet above a palm and stay one leaf.
 5. **Tubes that look like sheets**: a thick main stem is flat at ``stalk_radius``; a would-be
    leaf whose normals wrap around (``T``'s eigenvalue ratio over the whole piece above
-   ``tube_ratio``) is a stem piece, not a leaf; so is a blade that touches the stem with more
-   than ``STEM_PATCH`` of its points (a leaf touches it only where its stalk enters: a patch
-   of stem surface is bordered by stem all round). Sheet bits too small to be leaves (a blade
+   ``tube_ratio``) is a stem piece, not a leaf, when its *positions* say tube too; so is a blade
+   that touches the stem with more than ``STEM_PATCH`` of its points (a leaf touches it only
+   where its stalk enters: a patch of stem surface is bordered by stem all round) and is a tube
+   by its positions. The normals alone cannot tell a tube from a leaf curled along its length,
+   cupped or folded (its normals turn through a half circle too), and on real scans that sent
+   whole leaves to the stem (maize, tomato; ``benchmarks/real_scans.py``). The positions can:
+   the neighbourhood's covariance (:func:`shape_eigenvalues`, opacity-weightable) is thick
+   across a tube (``lambda_3 / lambda_2`` 0.4-0.8 at 2-4 ``stalk_radius``) and thin on a sheet,
+   curled or not, two-layered or noisy (0.02-0.12), and a tube is longer along the axis its
+   normals wrap around than across it (:func:`tube_shaped`), a curled leaf is not. These do not
+   use the Gaussians' rotations, the least reliable part of a real capture. Sheet bits too small to be leaves (a blade
    cut by the sheet test where it folds) join the nearest leaf through non-stem points.
 6. Leaves are ordered bottom to top by the ``D_r`` of their base; every Gaussian takes the label
    of its nearest domain point; floaters stay unassigned. The rootward tree (for the stem mesh)
@@ -207,6 +217,43 @@ def _tensor_ratio_within(points, normals, queries, radius, k=64) -> np.ndarray:
     return ev[:, 1] / np.maximum(ev[:, 2], 1e-12)
 
 
+def shape_eigenvalues(points: np.ndarray, weights: np.ndarray | None, queries: np.ndarray,
+                      radius: float, k: int = 48) -> np.ndarray:
+    """(Q, 3) float64 eigenvalues, largest first, of the weighted covariance of the positions of
+    the (up to ``k`` nearest) ``points`` ((P, 3)) within ``radius`` of each of ``queries``
+    ((Q, 3)); ``weights`` ((P,) >= 0, e.g. opacities; None = 1). Zero where fewer than 3
+    points lie within the radius. The neighbourhood's own shape, whatever its Gaussians' axes
+    say: a sheet gives lambda_3 << lambda_2, a tube of diameter below the radius lambda_3 ~
+    lambda_2 << lambda_1."""
+    q = len(queries)
+    kk = int(min(k, len(points)))
+    _, nb = cKDTree(points).query(queries, k=kk, distance_upper_bound=radius, workers=-1)
+    nb = nb.reshape(q, kk)
+    w = np.ones(len(points)) if weights is None else np.asarray(weights, np.float64)
+    wp = np.concatenate([w, [0.0]])[nb]  # beyond the radius: index len(points), weight 0
+    xp = np.concatenate([np.asarray(points, np.float64), np.zeros((1, 3))])[nb]
+    tot = np.maximum(wp.sum(1), 1e-12)
+    mu = (xp * wp[..., None]).sum(1) / tot[:, None]
+    dx = (xp - mu[:, None]) * np.sqrt(wp)[..., None]
+    ev = np.linalg.eigvalsh(dx.transpose(0, 2, 1) @ dx / tot[:, None, None])[:, ::-1]
+    ev[(nb < len(points)).sum(1) < 3] = 0.0
+    return np.maximum(ev, 0.0)
+
+
+def thickness(g: SurfaceGraph, weights: np.ndarray | None, factor: float, params) -> np.ndarray:
+    """(M,) lambda_3 / lambda_2 of the neighbourhood within ``factor`` x ``stalk_radius`` of each
+    graph point (:func:`shape_eigenvalues`; on a coarser voxel subsample beyond the base radius,
+    so that the neighbours reach that far): ~0 on a sheet, curled or not, at scales below its
+    curl radius; 0.2-1 across a tube (a half-circle arc, one side of a stem seen by a scanner,
+    gives ~0.2; a full circle 1)."""
+    pts, w = g.points, weights
+    if factor > 1:
+        sub = voxel_subsample(g.points, max(64, int(g.size / (factor * factor))))
+        pts, w = g.points[sub], None if weights is None else weights[sub]
+    ev = shape_eigenvalues(pts, w, g.points, factor * params.stalk_radius)
+    return ev[:, 2] / np.maximum(ev[:, 1], 1e-300)
+
+
 def tube_mask(g: SurfaceGraph, params) -> np.ndarray:
     """Step 2 (before the root test): (M,) bool, True where the surface is a tube: the normal
     tensor's eigenvalue ratio exceeds ``stalk_ratio`` within ``stalk_radius``, or the stricter
@@ -234,11 +281,15 @@ def smooth_mask(graph: csr_matrix, mask: np.ndarray, rounds: int = 2) -> np.ndar
 
 
 def rooted_stem(g: SurfaceGraph, tube: np.ndarray, d_root: np.ndarray, link: float,
-                min_size: int) -> np.ndarray:
+                min_size: int, thick: np.ndarray | None = None, gap: float = 0.0,
+                params=None) -> np.ndarray:
     """Step 2: (M,) bool, the stem: of the pieces of tube points (tube points at most ``link``
     apart are one piece, so a stem whose tube test drops out for a moment stays one piece) with
     at least ``min_size`` points, the one reaching lowest in ``D_r``. Other tube-like spots (a
-    curled blade's) are not stem."""
+    curled blade's) are not stem. With ``thick`` ((M,) :func:`piece_thickness`), ``gap`` > 0
+    (working units) and ``params``, pieces of at least ``min_size`` points that are thick across
+    (``params.piece_thick``) and lie within ``gap`` of the stem along the surface graph join it,
+    transitively: the stem beyond a stretch where the tube test dropped out."""
     idx = np.flatnonzero(tube & np.isfinite(d_root))
     out = np.zeros(len(tube), bool)
     if not len(idx):
@@ -250,7 +301,22 @@ def rooted_stem(g: SurfaceGraph, tube: np.ndarray, d_root: np.ndarray, link: flo
     low = np.full(n, np.inf)
     np.minimum.at(low, comp, d_root[idx])
     low[size < min(min_size, size.max())] = np.inf
-    out[idx[comp == int(np.argmin(low))]] = True
+    first = int(np.argmin(low))
+    out[idx[comp == first]] = True
+    if thick is None or gap <= 0 or params is None:
+        return out
+    # chain: a tube piece (thick across, of leaf size) within ``gap`` of the stem along the surface
+    # graph continues it (the tube test drops out where a scan samples a stem from one side)
+    cand = [c for c in range(n)
+            if c != first and size[c] >= min_size and _is_thick(thick[idx[comp == c]], params)]
+    while cand:
+        d = dijkstra(g.graph, indices=np.flatnonzero(out), min_only=True, limit=gap)
+        near = [c for c in cand if np.isfinite(d[idx[comp == c]]).any()]
+        if not near:
+            break
+        for c in near:
+            out[idx[comp == c]] = True
+        cand = [c for c in cand if c not in near]
     return out
 
 
@@ -313,7 +379,8 @@ def contact_plane(g: SurfaceGraph, grp: np.ndarray):
     return g.points[grp].mean(0), (n / norm if norm > 1e-12 else None)
 
 
-def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
+def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size, surface=None,
+                            thick=None):
     """Step 4: leaves of one blade piece by the merge tree of the superlevel sets of ``dist``.
 
     nodes : (k,) graph indices of the piece; dist : (k,) distance from its attachment;
@@ -323,8 +390,10 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
     * less than ``params.palm_fraction`` of their size lies below the saddle (they meet at their
       bases: leaflets at the end of a rachis) and the smaller is at least ``PALM_BALANCE`` of
       the larger (a sliver of overlap is no leaflet), or
-    * exactly one of them is a tube (normal tensor ratio above ``params.tube_ratio``): a leaf
-      meeting a stem too thick to pass the local tube test; the tube branch goes on.
+    * exactly one of them is a tube (normal tensor ratio above ``params.tube_ratio`` and, when
+      ``surface`` (the SurfaceGraph) is given, :func:`_piece_is_tube` with ``thick`` ((M,)
+      :func:`piece_thickness`): a curled sheet's normals wrap around too): a leaf meeting a stem
+      too thick to pass the local tube test; the tube branch goes on.
 
     After a cut at the bases the merged set goes on as a *junction* (the few points where the
     leaflets meet); what it gathers is not a leaf of its own unless a larger, unflagged branch
@@ -354,7 +423,9 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size):
         return x
 
     def is_tube(x):  # of the branch's free points (asked only when two leaf-size branches meet)
-        return normal_tensor_ratio(nrm[free[x]]) > params.tube_ratio
+        if surface is None:
+            return normal_tensor_ratio(nrm[free[x]]) > params.tube_ratio
+        return _piece_is_tube(surface, nodes[free[x]], thick, params)
 
     def freeze(x):
         leaves.append(np.asarray(free[x]))
@@ -405,9 +476,12 @@ class BladeLeaves:
 
 
 def find_leaves(g: SurfaceGraph, sheet: csr_matrix, stem: np.ndarray, d_root: np.ndarray,
-                params) -> BladeLeaves:
-    """Steps 3-5 on the surface graph."""
+                params, thick: np.ndarray | None = None) -> BladeLeaves:
+    """Steps 3-5 on the surface graph. thick : (M,) :func:`piece_thickness` of each point (None:
+    computed here, unweighted)."""
     m = g.size
+    if thick is None:
+        thick = piece_thickness(g, None, params)
     blade = ~stem
     gb = _restrict(sheet, blade)
     n_comp, comp = connected_components(gb, directed=False)
@@ -422,7 +496,9 @@ def find_leaves(g: SurfaceGraph, sheet: csr_matrix, stem: np.ndarray, d_root: np
     stem = stem.copy()
     for cid in np.flatnonzero(sizes >= min_size):
         members = np.flatnonzero(comp == cid)
-        if attached[members].mean() > STEM_PATCH:  # stem surface the tube test missed
+        if attached[members].mean() > STEM_PATCH and (  # stem surface the tube test missed
+                _is_thick(thick[members], params)
+                or tube_shaped(g.points[members], g.normals[members], params)):
             stem[members] = True
             continue
         groups = _attachment_groups(g, members, attached, link)
@@ -441,13 +517,13 @@ def find_leaves(g: SurfaceGraph, sheet: csr_matrix, stem: np.ndarray, d_root: np
                 rest.append(piece)
                 continue
             lv, left = split_at_narrow_saddles(piece, np.where(np.isfinite(pd), pd, 0.0), gb,
-                                               g.normals, params, min_size)
+                                               g.normals, params, min_size, g, thick)
             leaves += lv
             split += [len(groups) > 1 or len(lv) > 1] * len(lv)
             rest.append(left)
     keep = []
     for lv, sp in zip(leaves, split):
-        if normal_tensor_ratio(g.normals[lv]) > params.tube_ratio:  # step 5: a tube, not a leaf
+        if _piece_is_tube(g, lv, thick, params):  # step 5: a tube, not a leaf
             stem[lv] = True
         else:
             keep.append((lv, sp))
@@ -461,6 +537,46 @@ def find_leaves(g: SurfaceGraph, sheet: csr_matrix, stem: np.ndarray, d_root: np
         _nearest_leaf(gb, labels, todo)
     _claim_loose_sheet(g, labels, stem)
     return BladeLeaves(labels=labels, was_split=np.asarray([s for _, s in keep], bool), stem=stem)
+
+
+def piece_thickness(g: SurfaceGraph, weights: np.ndarray | None, params) -> np.ndarray:
+    """(M,) the larger of :func:`thickness` at 2 and 4 x ``stalk_radius``: with
+    :func:`tube_shaped`, what decides whether a piece whose normals wrap around is a tube or a
+    curled sheet."""
+    return np.maximum(thickness(g, weights, 2.0, params), thickness(g, weights, 4.0, params))
+
+
+def tube_shaped(points: np.ndarray, normals: np.ndarray, params) -> bool:
+    """Whether a piece whose normals wrap around ((k, 3) points and unit normals) is long along
+    the axis they wrap around (the normal tensor's least eigenvector) against its extent across
+    it: a tube is (a stem piece is longer than it is thick), a curled sheet is not (a leaf
+    curled along its length is only its width long on that axis, and its arch is wide). Extents
+    are 5-95 % ranges, so stray points do not count."""
+    if len(points) < 3:
+        return False
+    axis = np.linalg.eigh(normals.T @ normals)[1][:, 0]
+    along = points @ axis
+    across = points - along[:, None] * axis
+    c = across - across.mean(0)
+    main = np.linalg.eigh(c.T @ c)[1][:, -1]
+    length = np.subtract(*np.percentile(along, [95, 5]))
+    width = np.subtract(*np.percentile(c @ main, [95, 5]))
+    return bool(length > params.tube_elongation * max(width, 1e-12))
+
+
+def _piece_is_tube(g: SurfaceGraph, nodes: np.ndarray, thick: np.ndarray | None, params) -> bool:
+    """Step 5 for one piece (graph indices): its normals wrap around (normal tensor ratio above
+    ``tube_ratio``) and its positions say tube, not curled sheet: thick across
+    (:func:`piece_thickness`, median above ``piece_thick``) or :func:`tube_shaped`."""
+    if normal_tensor_ratio(g.normals[nodes]) <= params.tube_ratio:
+        return False
+    return thick is None or _is_thick(thick[nodes], params) or tube_shaped(g.points[nodes], g.normals[nodes], params)
+
+
+def _is_thick(values: np.ndarray, params) -> bool:
+    """A piece is thick across (a tube, not a curled or folded sheet) when the median of its
+    :func:`piece_thickness` ``values`` exceeds ``params.piece_thick``."""
+    return bool(len(values)) and float(np.median(values)) > params.piece_thick
 
 
 def _claim_loose_sheet(g: SurfaceGraph, labels: np.ndarray, stem: np.ndarray) -> None:
@@ -560,15 +676,17 @@ def segment_blades(pts: np.ndarray, root: int, inlier: np.ndarray, normals, para
     raw = tube_mask(g, params)
     sheet = sheet_edges(g, raw, params)
     tube = smooth_mask(sheet, raw)
+    thick = piece_thickness(g, None, params)
     stem = rooted_stem(g, tube, d_root, params.attach_link * float(np.median(g.spacing)),
-                       max(20, int(params.min_leaf_fraction * g.size)))
+                       max(20, int(params.min_leaf_fraction * g.size)), thick=thick,
+                       gap=params.stem_gap * params.stalk_radius, params=params)
     far = far_pieces(g, source, ISLAND_GAP)
     if far.any():
         log.warning("the cloud is disconnected: %d of %d graph points lie more than %.2g plant "
                     "heights from the plant and stay unassigned", int(far.sum()), g.size, ISLAND_GAP)
         sheet = _restrict(sheet, ~far)
         stem = stem & ~far
-    found = find_leaves(g, sheet, stem | far, d_root, params)
+    found = find_leaves(g, sheet, stem | far, d_root, params, thick=thick)
     found.stem &= ~far
     conf = leaf_confidence(g, found)
     timings["leaves"] = time.perf_counter() - t

@@ -242,3 +242,74 @@ def test_a_stem_touching_a_blade_from_below_does_not_cut_the_leaf():
     seg = segment_plant(pts, root, normals=nrm)
     assert seg.n_leaves == 1
     assert segmentation_scores(seg.labels, lab).miou >= 90
+
+
+def _curled_ribbon(rng, n, z0=0.5, length=0.5, width=0.08, curl=0.1, layers=0.003, noise=0.0015,
+                   normal_noise=0.35):
+    """A leaf leaving a vertical stem at height ``z0``: a ribbon whose midline curls up and over
+    with radius ``curl`` (length / curl = 5 rad: its normals turn through more than a half
+    circle, as a tube's do), sampled as a scan sees a real leaf: two layers ``layers`` apart,
+    positional noise and noisy normals. (n, 3) points and (n, 3) unit normals."""
+    t = rng.random(n) * length
+    y = (rng.random(n) - 0.5) * width * np.minimum(1.0, 4 * t / length + 0.2)
+    th = t / curl
+    mid = np.stack([0.006 + curl * np.sin(th), np.zeros(n), z0 + curl * (1 - np.cos(th))], 1)
+    nrm = np.stack([-np.sin(th), np.zeros(n), np.cos(th)], 1)
+    side = np.where(rng.random(n) < 0.5, -0.5, 0.5) * layers
+    pts = mid + y[:, None] * np.array([0, 1.0, 0]) + side[:, None] * nrm + rng.normal(0, noise, (n, 3))
+    nn = nrm + rng.normal(0, normal_noise, (n, 3))
+    return pts, nn / np.linalg.norm(nn, axis=1, keepdims=True)
+
+
+def test_a_noisy_two_layered_curled_leaf_on_a_stem_is_a_leaf():
+    """A curled leaf's normals wrap around as a tube's do (the whole-piece normal tensor ratio is
+    ~1), but its positions are thin across at every scale below its curl radius: it is a leaf,
+    not a piece of stem, however noisy and two-layered its sampling."""
+    for normal_noise in (0.1, 0.35):  # ~6 and ~20 degrees
+        rng = np.random.default_rng(11)
+        stem, sn = _cylinder([0, 0, 0], [0, 0, 1.0], 0.006, 5000, rng)
+        leaf, ln = _curled_ribbon(rng, 9000, normal_noise=normal_noise)
+        assert normal_tensor_ratio(ln) > 0.65  # what the whole-piece tube test alone called stem
+        pts, nrm = np.concatenate([stem, leaf]), np.concatenate([sn, ln])
+        lab = np.r_[np.zeros(len(stem), np.int32), np.ones(len(leaf), np.int32)]
+        seg = segment_plant(pts, int(np.argmin(pts[:, 2])), normals=nrm)
+        assert (seg.labels[lab == 1] > 0).mean() > 0.9
+        assert (seg.labels[lab == 0] == 0).mean() > 0.9
+        if normal_noise < 0.2:  # noisier normals cut the sheet into pieces: leaves all the same
+            assert seg.n_leaves == 1
+
+
+def test_thickness_tells_a_tube_from_a_curled_sheet():
+    """The position-shape measure behind it: lambda_3 / lambda_2 of the neighbourhood is ~1
+    across a tube and small on a curled sheet (its normals notwithstanding)."""
+    from leaffit_usd.segment.blades import piece_thickness
+
+    rng = np.random.default_rng(12)
+    stem, sn = _cylinder([0, 0, 0], [0, 0, 1.0], 0.006, 5000, rng)
+    leaf, ln = _curled_ribbon(rng, 9000)
+    pts = np.concatenate([stem, leaf])
+    g = build_surface_graph(pts, np.concatenate([sn, ln]), np.ones(len(pts), bool), SegmentParams())
+    th = piece_thickness(g, None, SegmentParams())
+    on_stem = g.domain < len(stem)
+    low_stem = on_stem & (g.points[:, 2] < 0.35)  # away from the leaf
+    assert np.median(th[low_stem]) > 2 * SegmentParams().piece_thick
+    assert np.median(th[~on_stem]) < SegmentParams().piece_thick
+
+
+def test_a_stem_whose_tube_test_drops_out_is_one_stem():
+    """The tube test misses a stretch of the stem (sampled from one side, noisy): the piece
+    above the gap is still the stem, chained to the root's piece along the surface."""
+    from leaffit_usd.segment.blades import piece_thickness, rooted_stem
+
+    rng = np.random.default_rng(13)
+    stem, sn = _cylinder([0, 0, 0], [0, 0, 1.0], 0.006, 6000, rng)
+    p = SegmentParams()
+    g = build_surface_graph(stem, sn, np.ones(len(stem), bool), p)
+    z = g.points[:, 2]
+    tube = (z < 0.4) | (z > 0.42)  # a gap 0.02 long: under stem_gap stalk radii
+    link = p.attach_link * float(np.median(g.spacing))
+    th = piece_thickness(g, None, p)
+    old = rooted_stem(g, tube, z, link, 20)
+    new = rooted_stem(g, tube, z, link, 20, thick=th, gap=p.stem_gap * p.stalk_radius, params=p)
+    assert not old[z > 0.42].any()
+    assert new[z > 0.42].all() and new[z < 0.4].all()
