@@ -517,7 +517,7 @@ def find_leaves(g: SurfaceGraph, sheet: csr_matrix, stem: np.ndarray, d_root: np
                 rest.append(piece)
                 continue
             lv, left = split_at_narrow_saddles(piece, np.where(np.isfinite(pd), pd, 0.0), gb,
-                                               g.normals, params, min_size, g, thick)
+                                               g.normals, params, min_size)
             leaves += lv
             split += [len(groups) > 1 or len(lv) > 1] * len(lv)
             rest.append(left)
