@@ -195,7 +195,7 @@ def isolate_plant(cloud, params: IsolateParams | None = None, up: np.ndarray | N
     # 1-3 on the samples -----------------------------------------------------------------------
     # the same Gaussians in another file order give the same samples, hence the same classes
     sidx = cand_idx[position_order_sample(pts[cand_idx], p_.sample, p_.seed)]
-    scls, ground, soil, thr, radius = _analyse_samples(pts[sidx], p_, up, timings)
+    scls, ground, soil, thr, radius = _analyse_samples(pts[sidx], cloud.colors[sidx], p_, up, timings)
 
     # every Gaussian: its sample's class, the ground plane's exact rule --------------------------
     t0 = time.perf_counter()
@@ -236,8 +236,8 @@ def isolate_plant(cloud, params: IsolateParams | None = None, up: np.ndarray | N
                      timings=timings)
 
 
-def _analyse_samples(s: np.ndarray, p_: IsolateParams, up, timings: dict):
-    """Steps 1-3 on the samples (M, 3): (classes (M,) uint8, ground (unit normal, d) or None,
+def _analyse_samples(s: np.ndarray, colors: np.ndarray, p_: IsolateParams, up, timings: dict):
+    """Steps 1-3 on the samples (M, 3) with their RGB colours (M, 3): (classes (M,) uint8, ground (unit normal, d) or None,
     the soil (:class:`~leaffit_usd.isolate.soil.SoilDisc`, looked for when there is no ground) or
     None, the ground's inlier distance, the components' linking radius)."""
     t0 = time.perf_counter()
@@ -247,9 +247,9 @@ def _analyse_samples(s: np.ndarray, p_: IsolateParams, up, timings: dict):
     timings["planes"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    edges = knn_graph(s, p_.link)
+    edges = knn_graph(s, p_.link, local=True)
     ground = _choose_ground(s, planes, thr, voxel, edges, p_, up)
-    soil = find_soil(s, planes, thr, voxel, up) if ground is None and p_.pot else None
+    soil = find_soil(s, colors, planes, thr, voxel, up) if ground is None and p_.pot else None
     scls = np.full(len(s), PLANT, np.uint8)
     off = np.ones(len(s), bool)
     if ground is not None:
@@ -507,8 +507,9 @@ def _plant_floaters(pts, classes, p_: IsolateParams) -> None:
     position-order sample of them alone (so the plant's samples have the same density, and the
     statistics the same population, whether the capture kept a pot and a table or not), a sample
     is a floater when it is a statistical outlier (open3d's rule, ``outlier_neighbors`` /
-    ``outlier_std``) AND isolated: at most one other sample within the linking radius
-    (``link`` x the median 4-NN spacing). A thin or sparsely sampled stem is a statistical
+    ``outlier_std``) AND isolated: at most one other sample within its local linking radius
+    (``link`` x the local 4-NN spacing, see ``shapes.knn_graph``: a leaf sampled 12x more
+    sparsely than the rest is not a cloud of floaters). A thin or sparsely sampled stem is a statistical
     outlier too (its neighbours lie along a line), but its samples form a chain; cutting a piece
     out of it changed the leaves found (rubber tree, cotton rose: 40 stem Gaussians, 10 to 45
     mIoU points). Every PLANT Gaussian follows its nearest sample."""
@@ -522,8 +523,8 @@ def _plant_floaters(pts, classes, p_: IsolateParams) -> None:
         return
     sidx = plant[position_order_sample(pts[plant], p_.sample, p_.seed + 2)]
     s = pts[sidx]
-    _, _, radius, d = knn_graph(s, p_.link, k)
-    linked = (d[:, 1:] <= radius).sum(1)
+    _, _, _, d, local = knn_graph(s, p_.link, k)
+    linked = (d[:, 1:] <= local[:, None]).sum(1)
     bad = ~statistical_inliers(s, k, float(p_.outlier_std), distances=d) & (linked <= 1)
     if not bad.any():
         return

@@ -70,20 +70,37 @@ def ransac_plane(v: np.ndarray, thr: float, iterations: int, rng: np.random.Gene
     return nrm[best], float(d[best])
 
 
-def knn_graph(s: np.ndarray, link: float, k_more: int = 0) -> tuple:
+#: the local linking radius is at most this x the global one (a part sampled up to 16x more
+#: sparsely than the median holds together; sparser than that is another object or floaters)
+MAX_SPARSE = 4.0
+
+
+def knn_graph(s: np.ndarray, link: float, k_more: int = 0, local: bool = False) -> tuple:
     """The samples' (M, 3) 10-NN graph with edges shorter than ``link`` x the median 4-NN
     distance: (rows (E,) int64, cols (E,) int64, that radius, the sorted distances (M, k) to the
-    max(11, ``k_more``) nearest samples, itself first)."""
+    max(11, ``k_more``) nearest samples, itself first, the local radii (M,)).
+
+    The local radius of a sample follows the density around it: ``link`` x the median 4-NN
+    distance of its 10 nearest samples (itself included), between the global radius and
+    ``MAX_SPARSE`` x it. With ``local`` an edge is kept when it is shorter than the local radius
+    at both ends: a sparsely sampled part of a plant (uneven density, 12x sparser) then holds
+    together, while an isolated floater, whose nearest samples are dense plant, still links to
+    nothing."""
     from leaffit_usd.geometry.knn import knn
 
     m = len(s)
     if m < 2:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), 0.0, np.zeros((m, 1))
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), 0.0, np.zeros((m, 1)), np.zeros(m)
     k = min(11, m)
     d, nb = knn(s, min(max(k, k_more), m))
-    radius = link * float(np.median(d[:, min(4, k - 1)]))
-    ok = d[:, 1:k] <= radius
-    return np.repeat(np.arange(m), k - 1)[ok.ravel()], nb[:, 1:k][ok], radius, d
+    d4 = d[:, min(4, k - 1)]
+    radius = link * float(np.median(d4))
+    r = np.clip(link * np.median(d4[nb[:, :k]], axis=1), radius, MAX_SPARSE * radius)
+    if local:
+        ok = d[:, 1:k] <= np.minimum(r[:, None], r[nb[:, 1:k]])
+    else:
+        ok = d[:, 1:k] <= radius
+    return np.repeat(np.arange(m), k - 1)[ok.ravel()], nb[:, 1:k][ok], radius, d, r
 
 
 def components(edges: tuple, mask: np.ndarray) -> np.ndarray:

@@ -13,7 +13,13 @@ one of the first planes. A plane is the soil (:func:`find_soil`) when, seen alon
   ``WALL_COVERAGE`` of the sectors around it, reaching at least ``MIN_DEPTH`` x the radius
   below the disc -- a shell under the disc all round, not a plant's stem and leaves;
 * on the other side (above) stands the plant: more samples than below, rising at least
-  ``MIN_RISE`` inlier distances.
+  ``MIN_RISE`` inlier distances;
+* the disc is not of the plant's colour: its median colour is at least ``SOIL_CONTRAST`` (RGB
+  distance) from the median colour of the plant's upper part. Soil, bark, pebbles are not
+  foliage; a layer of touching leaflets in a flat canopy can look like a disc with leaves above
+  it in a shell, and only its colour tells it from soil (a hard4 soybean: 0.05-0.06, against
+  0.22-0.49 for the real houseplant's soil and the capture-realism samples'). Soil under green
+  moss fails this test and the plant's shape then gives the up axis.
 
 A big round leaf fails the pot test (the rest of its plant is not a shell under it, nor within
 its footprint); a table fails the disc test or passes the ground test first
@@ -52,6 +58,7 @@ WALL_SHARE = 0.4       # share of the samples below that are wall, at least
 WALL_COVERAGE = 0.85   # sectors around the axis holding wall samples, at least
 MIN_DEPTH = 0.5        # the pot reaches this x R below the soil (90th percentile), at least
 MIN_RISE = 10.0        # the plant rises at least this many inlier distances above the soil
+SOIL_CONTRAST = 0.15   # RGB distance between the disc's and the plant's median colours, at least
 RIM_RING = (0.8, 1.15)  # the rim's ring: radial band, x (R, outer radius)
 RIM_COVERAGE = 0.6     # sectors of a rim ring holding Gaussians, at least
 RIM_MAX = 0.5          # the rim is looked for up to this x the plant's height above the soil
@@ -108,11 +115,12 @@ def _pot_below(h, xy, rho, thr, radius) -> bool:
     return float(np.quantile(h[above], 0.99)) >= MIN_RISE * thr
 
 
-def find_soil(s: np.ndarray, planes: list, thr: float, voxel: float, up=None) -> SoilDisc | None:
+def find_soil(s: np.ndarray, colors: np.ndarray, planes: list, thr: float, voxel: float,
+              up=None) -> SoilDisc | None:
     """The soil among the candidate ``planes`` [(unit normal (3,), d)] of the samples ``s``
-    (M, 3), or None. thr : inlier distance; voxel : the plane sample's voxel size (the patch
-    grid is twice it); up : the user's up (3,) or None -- with it only planes within 45 degrees
-    of it, facing it, are tried. See the module docstring."""
+    (M, 3) with RGB ``colors`` (M, 3) in [0, 1], or None. thr : inlier distance; voxel : the
+    plane sample's voxel size (the patch grid is twice it); up : the user's up (3,) or None --
+    with it only planes within 45 degrees of it, facing it, are tried. See the module docstring."""
     best = None
     for n0, d0 in planes:
         h0 = heights(s, n0, d0)
@@ -134,6 +142,11 @@ def find_soil(s: np.ndarray, planes: list, thr: float, voxel: float, up=None) ->
             if up is not None and n_ @ up < np.cos(np.radians(45)):
                 continue
             if not _pot_below(sign * h0, off, rho, thr, radius):
+                continue
+            hs = sign * h0
+            top = hs > 0.3 * float(np.quantile(hs, 0.99))
+            if np.linalg.norm(np.median(colors[on[in_patch]], axis=0)
+                              - np.median(colors[top], axis=0)) < SOIL_CONTRAST:
                 continue
             if best is None or len(pxy) > best.patch:
                 centre = basis @ c - n_ * (d_ + float(n_ @ (basis @ c)))

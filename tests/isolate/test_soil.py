@@ -98,3 +98,15 @@ def test_a_big_round_leaf_is_not_soil(seed):
     cloud, gt = make_plant(preset("golden_pothos", gaussians=8000), seed)
     iso = isolate_plant(cloud)
     assert iso.up_source is None and iso.pot is None
+
+
+def test_a_disc_of_the_plants_own_colour_is_not_soil(potted):
+    """A flat layer of touching leaflets with leaves above it in a shell is shaped like soil over
+    a pot; only its colour tells them apart."""
+    cloud, truth, up, _ = potted
+    leafy = cloud.subset(np.arange(len(cloud)))
+    plant_dc = np.median(cloud.sh[truth == 0, 0], axis=0)
+    leafy.sh = leafy.sh.copy()
+    leafy.sh[truth != 0, 0] = plant_dc
+    iso = isolate_plant(leafy)
+    assert iso.up_source is None and (iso.classes == PLANT)[truth != 0].mean() > 0.9

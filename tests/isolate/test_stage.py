@@ -52,3 +52,18 @@ def test_a_root_on_what_isolation_removes_keeps_the_capture_whole(caplog):
     assert (iso.classes == PLANT).all()
     _, iso = isolate_stage(cloud, root_index=10)  # a root on the plant: isolation as usual
     assert (iso.classes[5000:] == BACKGROUND).all()
+
+
+def test_a_sparsely_sampled_part_of_the_plant_is_kept():
+    """Uneven density: a leaf sampled 12x more sparsely than the rest of the plant, touching
+    it, is the plant's (the components' link follows the local spacing), not background."""
+    rng = np.random.default_rng(3)
+    dense = np.c_[rng.uniform(0, 1, (10000, 2)), 0.002 * rng.normal(size=10000)]
+    sparse = np.c_[rng.uniform(0, 1, (800, 2)) + [1.0, 0.0], 0.002 * rng.normal(size=800)]
+    p = np.r_[dense, sparse]
+    n = len(p)
+    cloud = GaussianCloud.from_activated(p, np.full((n, 3), 0.005), np.tile([1.0, 0, 0, 0], (n, 1)),
+                                         np.full(n, 0.8), colors=np.full((n, 3), 0.4))
+    _, iso = isolate_stage(cloud)
+    assert (iso.classes[10000:] == PLANT).mean() > 0.99
+    assert "kept_whole" not in iso.params
