@@ -120,7 +120,8 @@ def make_frame(cloud: GaussianCloud, up: np.ndarray | None = None, root: np.ndar
     root : None (the lowest point along up) or a (3,) point, input frame (nearest Gaussian);
         root_index : a Gaussian's index in the input file; see :func:`splats.root.resolve_root`.
     The frame's origin is the root Gaussian's centre; height is the extent above it of the
-    largest connected blob (floaters do not count).
+    largest connected blob (floaters do not count). An estimated up is turned round when the
+    root the user gave lies nearer the blob's top than its bottom along it.
     """
     import logging
 
@@ -141,7 +142,14 @@ def make_frame(cloud: GaussianCloud, up: np.ndarray | None = None, root: np.ndar
     blob = MainBlob(cloud.means)
     ri = resolve_root(cloud, root, root_index, u, blob=blob)
     # height: the plant's extent above the root, floaters excluded
-    _, hi, _ = height_range(cloud.means, u, blob)
+    lo, hi, h = height_range(cloud.means, u, blob)
+    if up is None and (root is not None or root_index is not None) and h[hi] - h[ri] < h[ri] - h[lo]:
+        # the root the user gave is the plant's bottom: an estimated up that puts it nearer the
+        # top than the bottom points the wrong way (a sparse scan's estimate can)
+        u = -u
+        log.info("up axis turned to (%.3f, %.3f, %.3f): the root you gave lies at the other end",
+                 *u)
+        lo, hi, h = height_range(cloud.means, u, blob)
     pts = cloud.means[[ri, hi]]
     frame = Frame.from_root_up(pts, cloud.means[ri].astype(np.float64), u)
     return FrameChoice(frame, ri)

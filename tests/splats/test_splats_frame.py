@@ -5,6 +5,7 @@ from scipy.spatial.transform import Rotation
 
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.commands._args import parse_root
+from leaffit_usd.splats.cloud import GaussianCloud
 from leaffit_usd.splats.frame import make_frame
 from leaffit_usd.splats.root import resolve_root
 from leaffit_usd.splats.transform import transform_cloud
@@ -253,3 +254,22 @@ def test_root_auto_joins_a_stem_cut_off_from_the_canopy():
     assert not blob.contains(clump).any()
     i = resolve_root(cut, None, None, sp.up)
     assert np.linalg.norm(cut.means[i] - sp.root) < ROOT_TOL * sp.height
+
+
+def test_an_estimated_up_that_puts_the_given_root_on_top_is_turned(monkeypatch):
+    """A sparse scan's up estimate can point from the plant to the root the user clicked; the
+    root is the plant's bottom, so the frame turns the estimate round instead of failing with
+    no extent above the root."""
+    from leaffit_usd.splats import frame as frame_mod
+    from leaffit_usd.splats.up_axis import UpEstimate
+
+    rng = np.random.default_rng(0)
+    z = rng.uniform(0, 1, 3000)
+    p = np.c_[0.3 * z * rng.normal(size=3000), 0.3 * z * rng.normal(size=3000), z]  # a cone, tip at 0
+    n = len(p)
+    cloud = GaussianCloud.from_activated(p, np.full((n, 3), 0.01), np.tile([1.0, 0, 0, 0], (n, 1)),
+                                         np.full(n, 0.8))
+    wrong = UpEstimate(up=np.array([0.0, 0.0, -1.0]), confidence=0.05, root=np.zeros(3))
+    monkeypatch.setattr(frame_mod, "estimate_up_with_confidence", lambda *a, **k: wrong)
+    choice = frame_mod.make_frame(cloud, root=p[np.argmin(z)])
+    assert choice.frame.up @ [0, 0, 1.0] > 0.99 and choice.frame.height > 0.9
