@@ -21,13 +21,11 @@ Gaussian then follows its nearest sample, or the exact geometric rule where ther
    ``connected_components``). The largest component is the plant (with its pot and soil);
    components within ``near_gap`` of it stay with it; the others are background objects
    (``min_background`` samples or more) or floaters.
-4. **Pot and soil** (when the up direction is known) -- a circle fitted to the lowest slab of the
-   plant's component (Kasa least squares, trimmed) that is wide (>= ``min_pot_radius`` x the
-   plant height), round (coverage of the angles) and thin (small residual) is the pot's foot;
-   the wall is followed upwards ring by ring while a full circle of Gaussians stays near the
-   expected radius; ``r(h)`` is a straight-line fit of the ring radii (a truncated cone). The
-   soil is the densest level of up-facing Gaussians inside the rim; everything inside the rim
-   below it is soil too.
+4. **Pot and soil** -- with no ground plane, the soil disc over a pot's shell
+   (:mod:`leaffit_usd.isolate.soil`) gives the up direction and removes the pot and soil; else,
+   with the up direction known (the table, the user's ``--up``, or the pot's own axis found by
+   :func:`leaffit_usd.isolate.pot.find_pot_axis`), :func:`leaffit_usd.isolate.pot.pot_and_soil`
+   fits the pot's foot circle and wall and the soil inside its rim.
 5. **Floaters** -- on a fresh position-order sample of what is still PLANT (the same density and
    population with or without a scene around the plant), samples that are statistical outliers
    (``outlier_neighbors``, ``outlier_std``; :func:`leaffit_usd.geometry.outliers.statistical_inliers`)
@@ -58,11 +56,11 @@ from leaffit_usd.errors import ParameterError
 from leaffit_usd.geometry import knn as _knn
 from leaffit_usd.geometry.plane import plane_basis
 from leaffit_usd.geometry.sampling import position_order_sample
-from leaffit_usd.isolate.shapes import (angular_coverage, circle_fit, components, fit_plane, heights,
-                                        in_grid, knn_graph, largest_patch, ransac_plane, span,
-                                        voxel_down)
+from leaffit_usd.isolate.shapes import (components, fit_plane, heights, in_grid, knn_graph,
+                                        largest_patch, ransac_plane, span, voxel_down)
+from leaffit_usd.isolate.pot import find_pot_axis, pot_and_soil, stem_base
 from leaffit_usd.isolate.soil import classify_pot_and_soil, find_soil
-from leaffit_usd.isolate.result import (BACKGROUND, FLOATER, GROUND, PLANT, POT, SOIL,
+from leaffit_usd.isolate.result import (BACKGROUND, FLOATER, GROUND, PLANT,
                                         Isolation)
 
 log = logging.getLogger("leaffit_usd")
@@ -211,10 +209,13 @@ def isolate_plant(cloud, params: IsolateParams | None = None, up: np.ndarray | N
     t0 = time.perf_counter()
     up_vec = ground[0] if ground is not None else up
     pot = root = root_index = None
+    pot_up = None
+    if p_.pot and up_vec is None and soil is None:
+        pot_up = up_vec = find_pot_axis(pts[sidx], thr, p_, p_.seed)
     if p_.pot and soil is not None:
         pot = classify_pot_and_soil(pts, cloud.colors, classes, soil)
     elif p_.pot and up_vec is not None:
-        pot = _pot_and_soil(cloud, pts, classes, up_vec, None if ground is None else ground[1], thr, p_)
+        pot = pot_and_soil(cloud, pts, classes, up_vec, None if ground is None else ground[1], thr, p_)
     timings["pot"] = time.perf_counter() - t0
 
     # 5. floaters among what is left of the plant, then the stem base -----------------------------
@@ -223,12 +224,13 @@ def isolate_plant(cloud, params: IsolateParams | None = None, up: np.ndarray | N
         _plant_floaters(pts, classes, p_)
     timings["outliers"] = time.perf_counter() - t0
     if pot is not None:
-        root_index = _stem_base(pts, classes, pot)
+        root_index = stem_base(pts, classes, pot)
         if root_index is not None:
             root = pts[root_index].copy()
     timings["total"] = time.perf_counter() - t_all
     scene_up, source = (ground[0], "table") if ground is not None else \
-        (soil.normal, "soil") if soil is not None else (None, None)
+        (soil.normal, "soil") if soil is not None else \
+        (pot_up, "pot") if pot_up is not None and pot is not None else (None, None)
     return Isolation(classes, up=None if scene_up is None else scene_up.copy(),
                      up_source=source, root=root,
                      root_index=root_index, plane=None if ground is None else np.r_[ground[0], ground[1]],
@@ -444,64 +446,6 @@ def _spread(pts, cand_idx, sidx, scls, radius) -> np.ndarray:
     return out
 
 
-def _pot_and_soil(cloud, pts, classes, up, d0, thr, p_: IsolateParams):
-    """Find a pot and its soil among the PLANT Gaussians (classes updated in place).
-
-    up : (3,) unit; d0 : ground plane offset (heights h = pts @ up + d0) or None (heights from
-    the plant's lowest point); thr : the ground plane's noise threshold (input units).
-    Returns the pot (dict: centre on the ground (3,), axis (3,), radii, heights; input frame and
-    units) or None.
-    """
-    plant = np.flatnonzero(classes == PLANT)
-    if len(plant) < 100:
-        return None
-    sel = plant[position_order_sample(pts[plant], p_.sample, p_.seed + 1)]  # free of file order
-    h_all = pts[plant] @ up
-    base = -d0 if d0 is not None else float(np.quantile(h_all, 0.001))
-    hs = pts[sel] @ up - base
-    H = float(np.quantile(hs, 0.99))
-    if H <= 0:
-        return None
-    basis = plane_basis(up)
-    shape = _pot_shape(pts[sel] @ basis, hs, H, thr, p_)
-    if shape is None:
-        return None
-    c, r_of, h_top, step = shape
-    # every plant Gaussian: height, radial distance
-    hp = h_all - base
-    xyp = pts[plant] @ basis
-    rp = np.linalg.norm(xyp - c, axis=1)
-    is_pot, is_soil, soil_h = _pot_wall_and_soil(cloud, plant, hp, xyp, rp, c, r_of, h_top, step,
-                                                 H, thr, up, basis)
-    classes[plant[is_pot]] = POT
-    classes[plant[is_soil]] = SOIL
-    r_top = float(r_of(h_top))
-    pot = {"center": basis @ c + up * base, "axis": up.copy(), "radius_bottom": float(r_of(0.0)),
-           "radius_top": r_top, "height": h_top,
-           "soil_height": float("nan") if soil_h is None else soil_h, "plant_height": H}
-    log.debug("pot: radius %.4g -> %.4g, height %.4g, soil at %s", pot["radius_bottom"], r_top,
-              h_top, soil_h)
-    return pot
-
-
-def _stem_base(pts, classes, pot) -> int | None:
-    """The stem base: the middle of the lowest PLANT Gaussians inside the pot's rim (index into
-    ``pts`` (N, 3), input frame), or None when none is inside. ``pot`` from :func:`_pot_and_soil`."""
-    plant = np.flatnonzero(classes == PLANT)
-    up = np.asarray(pot["axis"], np.float64)
-    rel = pts[plant] - np.asarray(pot["center"], np.float64)
-    hp = rel @ up
-    rp = np.linalg.norm(rel - np.outer(hp, up), axis=1)
-    idx = np.flatnonzero(rp < pot["radius_top"])
-    if not len(idx):
-        return None
-    hr = hp[idx]
-    lo = float(np.quantile(hr, 0.002))
-    band = idx[hr <= lo + 0.01 * pot["plant_height"]]
-    med = np.median(pts[plant[band]], axis=0)
-    return int(plant[band[np.argmin(np.linalg.norm(pts[plant[band]] - med, axis=1))]])
-
-
 def _plant_floaters(pts, classes, p_: IsolateParams) -> None:
     """Floaters left among the PLANT Gaussians (``classes`` (N,) updated in place): on a fresh
     position-order sample of them alone (so the plant's samples have the same density, and the
@@ -534,96 +478,3 @@ def _plant_floaters(pts, classes, p_: IsolateParams) -> None:
     _, near = cKDTree(s).query(pts[plant], k=1, workers=_knn.WORKERS)
     classes[plant[bad[near]]] = FLOATER
 
-
-def _pot_shape(xy, hs, H, thr, p_: IsolateParams):
-    """The pot's foot circle and wall profile from the samples' in-plane positions (M, 2) and
-    heights (M,) above the ground: (centre (2,), r(h) callable, rim height, ring step) or None
-    when the lowest slab is not a wide, round, thin circle or no wall rises from it."""
-    slab = 0.04 * H
-    foot = hs <= slab
-    if foot.sum() < 30:
-        return None
-    c, r, inl = circle_fit(xy[foot])
-    res = np.abs(np.linalg.norm(xy[foot] - c, axis=1) - r)
-    if not (p_.min_pot_radius * H <= r <= 0.8 * H) or inl.mean() < 0.5 \
-            or angular_coverage(xy[foot][inl], c) < 0.6 or np.median(res[inl]) > 0.05 * r:
-        return None
-    # climb the outer wall ring by ring: the outermost full ring near the previous radius
-    step = slab / 2
-    rho = np.linalg.norm(xy - c, axis=1)
-    rings = [(0.5 * slab, r)]
-    r_prev, misses, h = r, 0, slab
-    while h < 0.7 * H:
-        band = (hs >= h) & (hs < h + step)
-        r_bin, cov = r_prev, 0.0
-        for _ in range(2):
-            near = band & (np.abs(rho - r_bin) <= 0.1 * r_bin)
-            if near.sum() < 8:
-                break
-            r_bin = float(np.quantile(rho[near], 0.7))  # outer surface (inner wall, soil lie inside)
-        else:
-            tight = band & (np.abs(rho - r_bin) <= 0.05 * r_bin + thr)
-            cov = angular_coverage(xy[tight], c)
-        if cov >= 0.6:
-            rings.append((h + step / 2, r_bin))
-            r_prev, misses = r_bin, 0
-        else:
-            misses += 1
-            if misses > 1:
-                break
-        h += step
-    rings = np.array(rings)
-    h_top = float(rings[-1, 0] + step / 2)
-    if h_top >= 0.7 * H or len(rings) < 3:
-        return None
-    slope, icpt = np.polyfit(rings[:, 0], rings[:, 1], 1)
-
-    def r_of(hh):
-        return icpt + slope * np.clip(hh, 0, h_top)
-
-    return c, r_of, h_top, step
-
-
-def _pot_wall_and_soil(cloud, plant, hp, xyp, rp, c, r_of, h_top, step, H, thr, up, basis):
-    """Which plant Gaussians (indices ``plant``, heights ``hp``, in-plane ``xyp``, radial
-    distances ``rp``) are the pot's wall and which its soil: (is_pot, is_soil, soil height or
-    None). The soil is the densest level of up-facing Gaussians inside the rim, spread over the
-    rim's disk; the inner wall between it and the rim (vertical, facing the axis) is pot."""
-    r_top = float(r_of(h_top))
-    wall_band = 0.06 * r_of(hp) + thr
-    below_rim = hp <= h_top + step
-    is_pot = below_rim & (np.abs(rp - r_of(hp)) <= wall_band)
-    inside = (rp < 0.95 * r_top) & (hp > 0.2 * h_top) & (hp < h_top + 0.1 * H) & ~is_pot
-    is_soil = np.zeros(len(plant), bool)
-    cand = np.flatnonzero(inside)
-    if len(cand) < 20:
-        return is_pot, is_soil, None
-    nrm = cloud.subset(plant[cand]).shortest_axes()
-    flat = np.abs(nrm @ up) > 0.8
-    if flat.sum() < 20:
-        return is_pot, is_soil, None
-    hf = hp[cand[flat]]
-    bins = np.arange(hf.min(), hf.max() + step / 4, step / 4)
-    if len(bins) < 2:
-        return is_pot, is_soil, None
-    hist, edges = np.histogram(hf, bins=bins)
-    k = int(np.argmax(hist))
-    h0 = 0.5 * (edges[k] + edges[k + 1])
-    near0 = np.abs(hf - h0) <= step
-    soil_h = float(np.median(hf[near0]))
-    sig = 1.4826 * float(np.median(np.abs(hf[near0] - soil_h)))
-    tol = max(3.0 * sig, thr)
-    # a real soil surface: up-facing Gaussians spread over the rim's disk
-    if angular_coverage(xyp[cand[flat]][near0], c, 12) < 0.75 or near0.sum() < 20:
-        return is_pot, is_soil, None
-    is_soil = (rp < r_of(hp) + wall_band) & (hp <= soil_h + tol) & ~is_pot
-    # the inner wall between the soil and the rim: vertical Gaussians facing the axis
-    wall = np.flatnonzero(below_rim & (hp > soil_h + tol) & (rp >= 0.6 * r_of(hp))
-                          & (rp <= r_of(hp) + wall_band) & ~is_pot)
-    if len(wall):
-        nw = cloud.subset(plant[wall]).shortest_axes().astype(np.float64)
-        radial = (xyp[wall] - c) @ basis.T
-        radial /= np.maximum(np.linalg.norm(radial, axis=1, keepdims=True), 1e-30)
-        facing = np.abs(np.einsum("ij,ij->i", nw, radial)) > 0.6
-        is_pot[wall[facing]] = True
-    return is_pot, is_soil & ~is_pot, soil_h
