@@ -238,3 +238,19 @@ def build_parser_help() -> str:
     from leaffit_usd.cli import build_parser
 
     return build_parser([]).format_help()
+
+
+def test_inspect_names_the_scene_cue_of_a_potted_capture(capsys, tmp_path):
+    """A plant in a pot with soil and no table: inspect's up comes from the soil, as convert's
+    does, and names that cue; its root is the stem base at the soil, not the pot's bottom."""
+    from tests.isolate.test_soil import potted_capture
+
+    cloud, truth, up, _ = potted_capture()
+    write_ply(cloud, tmp_path / "potted.ply")
+    code, out, err = run_cli(capsys, "inspect", tmp_path / "potted.ply", "--json")
+    assert code == 0, err
+    s = json.loads(out)
+    assert "soil" in s["up"]["source"]
+    assert np.degrees(np.arccos(np.clip(np.asarray(s["up"]["vector"]) @ up, -1, 1))) < 3
+    soil_h = float(np.median(cloud.means[truth == 3] @ up))
+    assert abs(np.asarray(s["root"]["position"]) @ up - soil_h) < 0.05 * s["height"]

@@ -13,15 +13,17 @@ from leaffit_usd.errors import ParameterError
 from leaffit_usd.splats.up_axis import LOW_UP_CONFIDENCE
 
 NAME = "inspect"
-HELP = "summarise a 3DGS capture (.ply, .compressed.ply, .spz, .sog, .splat or USD)"
+HELP = "summarise a 3DGS capture (.ply, .compressed.ply, .spz, .sog, .splat, .glb, USD) or a point-cloud scan"
 DESCRIPTION = """\
 Summarise a 3DGS capture: Gaussian count (and how many invalid ones were dropped), SH degree,
 extra properties, bounds, estimated up axis (with a confidence) and plant height, memory size,
 opacity and scale statistics, and the file's format. Reads INRIA 3DGS PLY (binary or ASCII),
 compressed PLY (PlayCanvas/SuperSplat), SPZ (Niantic), SOG (PlayCanvas: .sog, or an unbundled
-meta.json or its folder), .splat (antimatter15) and USD files holding a
-UsdVol.ParticleField3DGaussianSplat prim. Compressed PLY, SPZ and SOG need the optional
-'formats' extra (pip install 'leaffit-usd[formats]').
+meta.json or its folder), .splat (antimatter15), 2DGS and Gaussian Opacity Fields PLY, glTF /
+GLB with KHR_gaussian_splatting, USD files holding a UsdVol.ParticleField3DGaussianSplat prim, and
+point clouds (PLY x y z [rgb], .xyz / .txt / .pts, .las / .laz: one Gaussian per point, built
+from its neighbourhood). Compressed PLY, SPZ and SOG need the optional 'formats' extra (pip
+install 'leaffit-usd[formats]'), LAS/LAZ the 'scans' extra (pip install 'leaffit-usd[scans]').
 
 Examples:
   leaffit-usd inspect plant.ply
@@ -35,7 +37,8 @@ _MIN_ESTIMATE = 10  # Gaussians needed to estimate an up axis
 def add_arguments(parser) -> None:
     parser.add_argument("file", metavar="FILE",
                         help="3DGS capture: .ply, .compressed.ply, .spz, .sog (or meta.json), .splat, "
-                             ".usd, .usda, .usdc or .usdz")
+                             ".glb, .gltf, .usd, .usda, .usdc or .usdz; or a point cloud: .ply, .xyz, "
+                             ".txt, .pts, .las or .laz")
     parser.add_argument("--json", action="store_true", help="print a JSON object instead of a table")
     parser.add_argument("--up", default="auto", metavar="AXIS",
                         help="up axis of the capture: auto (estimated, default), +x, -y, z, X,Y,Z "
@@ -55,7 +58,9 @@ def summarize(path: str | os.PathLike, prim: str | None = None, up: np.ndarray |
               cloud=None) -> dict:
     """A JSON-ready summary of the capture at ``path`` (loaded unless ``cloud`` is given).
 
-    up : (3,) unit vector, input frame, or None to estimate it.
+    up : (3,) unit vector, input frame, or None to estimate it: from the scene as ``convert``
+        does (the table, the soil, the pot; source names the cue), else from the plant's shape
+        (with a confidence).
 
     Keys: file, format (key of ``splats.FORMAT_NAMES``), format_name, file_bytes, gaussians,
     dropped, file_gaussians, sh_degree,
@@ -74,15 +79,18 @@ def summarize(path: str | os.PathLike, prim: str | None = None, up: np.ndarray |
         cloud = load_cloud(path, prim=prim)
     means = cloud.means
     lo, hi = means.min(0).astype(np.float64), means.max(0).astype(np.float64)
+    root_index = None
     if up is not None:
         up_vec, source, conf = np.asarray(up, np.float64), "given", None
     elif len(cloud) < _MIN_ESTIMATE:
         up_vec, source, conf = np.array([0.0, 0.0, 1.0]), "default +z (too few Gaussians to estimate)", 0.0
     else:
-        est = estimate_up_with_confidence(means, cloud.shortest_axes())
-        up_vec, source, conf = est.up, "estimated", float(est.confidence)
+        up_vec, source, conf, root_index = _scene_up(cloud)
+        if up_vec is None:
+            est = estimate_up_with_confidence(means, cloud.shortest_axes())
+            up_vec, source, conf = est.up, "estimated from the plant's shape", float(est.confidence)
     try:
-        choice = make_frame(cloud, up=up_vec)
+        choice = make_frame(cloud, up=up_vec, root_index=root_index)
         root_i, height = choice.root_index, float(choice.frame.height)
     except ParameterError:  # no extent along up (a single Gaussian, a flat sheet across up)
         root_i, height = 0, 0.0
@@ -106,6 +114,20 @@ def summarize(path: str | os.PathLike, prim: str | None = None, up: np.ndarray |
         "scale": _stats(scales.max(1)),
         "anisotropy": _stats(scales.max(1) / np.maximum(scales.min(1), 1e-30)),
     }
+
+
+def _scene_up(cloud):
+    """(up (3,), source, confidence, the stem base's file index or None) from what ``convert``'s
+    isolation finds around the plant (the table's normal, the soil disc's, the pot's axis), or
+    four Nones."""
+    from leaffit_usd.isolate import isolate_plant
+
+    iso = isolate_plant(cloud)
+    if iso.up is None:
+        return None, None, None, None
+    what = {"table": "the table's normal", "soil": "the soil disc's normal", "pot": "the pot's axis"}
+    root = None if iso.root_index is None else int(cloud.file_index[iso.root_index])
+    return np.asarray(iso.up, np.float64), what.get(iso.up_source, iso.up_source), None, root
 
 
 def _size(path: Path) -> int:
