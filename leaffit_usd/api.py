@@ -26,7 +26,6 @@ from pathlib import Path
 
 import numpy as np
 
-import leaffit_usd  # noqa: F401  (registers the schema)
 from leaffit_usd.errors import InputFileError, ParameterError, UserError
 from leaffit_usd.usd import schema as S
 from leaffit_usd.usd.vt import quat_arrays, vec3f_array

@@ -16,7 +16,8 @@ import pkgutil
 import re
 import sys
 
-from leaffit_usd import __version__, lazy_imports
+import leaffit_usd.lazy_imports as lazy_imports
+from leaffit_usd.version import __version__
 from leaffit_usd.errors import UserError
 
 log = logging.getLogger("leaffit_usd")

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from leaffit_usd import __version__
+from leaffit_usd.version import __version__
 from leaffit_usd.errors import InputFileError, ParameterError
 from leaffit_usd.fit.params import FitParams
 from leaffit_usd.isolate import IsolateParams

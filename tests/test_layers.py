@@ -1,27 +1,29 @@
 """The import rule (docs/architecture.md): no package imports a higher layer, and no module
-uses another module's private (underscore) names. Read from the source, lazy imports included."""
+uses another module's private (underscore) names. Read from the source, lazy imports included;
+the layers are read from the table in docs/architecture.md, the one statement of them."""
 import ast
+import re
 from pathlib import Path
 
 import pytest
 
 PKG = Path(__file__).resolve().parents[1] / "leaffit_usd"
+ARCHITECTURE = PKG.parent / "docs" / "architecture.md"
 
-# lowest first; a unit is a subpackage or a top-level module of leaffit_usd
-LAYERS = [
-    {"leaffit_usd", "errors", "io_util", "serialize", "image_io", "determinism", "lazy_imports"},
-    {"splats", "geometry", "metrics"},
-    {"isolate"},
-    {"segment"},
-    {"fit"},
-    {"mesh"},
-    {"usd"},
-    {"runtime", "edit", "viewer"},
-    {"export"},
-    {"pipeline", "api", "batch"},
-    {"commands"},
-    {"cli", "demo", "__main__"},
-]
+
+def read_layers(text: str) -> list[set[str]]:
+    """The layer table of docs/architecture.md (rows ``| N | `unit`, `unit` | job |``), lowest
+    first: a unit is a subpackage or a top-level module of leaffit_usd."""
+    rows = {}
+    for line in text.splitlines():
+        m = re.match(r"\|\s*(\d+)\s*\|([^|]*)\|", line)
+        if m:
+            rows[int(m.group(1))] = set(re.findall(r"`([A-Za-z_]+)`", m.group(2)))
+    assert rows and sorted(rows) == list(range(len(rows))), "the layer table is missing or has gaps"
+    return [rows[i] for i in range(len(rows))]
+
+
+LAYERS = read_layers(ARCHITECTURE.read_text())
 LAYER = {u: i for i, units in enumerate(LAYERS) for u in units}
 PRIVATE_MODULE_FRIENDS = {"leaffit_usd.commands._args": ("leaffit_usd.cli",)}
 
@@ -54,8 +56,6 @@ def upward_imports(files):
     bad = []
     for path, module in files:
         src = unit_of(module)
-        if module == "leaffit_usd":   # the package facade (lazy open_plant, schema registration)
-            continue
         for line, target, names in imports(path):
             dst = unit_of(target)
             if dst == "leaffit_usd" and names:   # `from leaffit_usd import x`: x may be a unit
@@ -106,3 +106,21 @@ def test_the_rule_catches_a_violation(tmp_path, line, kind):
     fake.write_text(f"def f():\n    {line}\n")
     found = (upward_imports if kind == "upward" else private_imports)([(fake, "leaffit_usd.usd.fake")])
     assert len(found) == 1, found
+
+
+@pytest.mark.parametrize("line", ["import leaffit_usd", "from leaffit_usd import __version__"])
+def test_importing_the_package_root_is_an_upward_import(tmp_path, line):
+    """The root is an entry point on the top floor (it registers the schema and offers
+    open_plant): a module inside the package that imports it (as usd/reader.py did, to register
+    the schema) breaks the rule."""
+    fake = tmp_path / "leaffit_usd" / "usd" / "fake.py"
+    fake.parent.mkdir(parents=True)
+    fake.write_text(line + "\n")
+    assert len(upward_imports([(fake, "leaffit_usd.usd.fake")])) == 1
+
+
+def test_the_layer_table_is_read_from_the_document():
+    text = ARCHITECTURE.read_text()
+    assert read_layers(text) == LAYERS and LAYER["leaffit_usd"] == LAYER["cli"] == len(LAYERS) - 1
+    with pytest.raises(AssertionError):
+        read_layers(text.replace("| 2 | `isolate`", "| 12 | `isolate`"))

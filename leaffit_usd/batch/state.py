@@ -29,7 +29,7 @@ import os
 import time
 from pathlib import Path
 
-from leaffit_usd import __version__
+from leaffit_usd.version import __version__
 from leaffit_usd.errors import InputFileError
 from leaffit_usd.io_util import atomic_write_bytes
 

@@ -41,12 +41,12 @@ from pathlib import Path
 
 import numpy as np
 
-import leaffit_usd
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.io_util import atomic_write_bytes
 from leaffit_usd.geometry.normals import vertex_normals
 from leaffit_usd.geometry.quaternion import matrix_to_quat, quat_to_matrix
 from leaffit_usd.runtime.evaluator import BakedLeaves, evaluate
+from leaffit_usd.version import __version__
 from leaffit_usd.usd.asset import PlantAsset
 
 GLTF_FORMATS = (".glb", ".gltf")
@@ -196,7 +196,7 @@ class _Builder:
 
         self.g = g
         self.blob = bytearray()
-        self.gltf = g.GLTF2(asset=g.Asset(version="2.0", generator=f"leaffit-usd {leaffit_usd.__version__}"))
+        self.gltf = g.GLTF2(asset=g.Asset(version="2.0", generator=f"leaffit-usd {__version__}"))
 
     def view(self, data: bytes, target: int | None = None) -> int:
         while len(self.blob) % 4:
@@ -311,7 +311,7 @@ def build_gltf(asset: PlantAsset, textures=None, options: GltfOptions | None = N
                                @ np.linalg.inv(G)).ravel(order="F").tolist(),
               "inputSha256": str((asset.metadata or {}).get("input_sha256", "")),
               "textureGain": [float(x) for x in gain],
-              "toolVersion": str((asset.metadata or {}).get("tool_version", leaffit_usd.__version__))}
+              "toolVersion": str((asset.metadata or {}).get("tool_version", __version__))}
     if L and not options.instanced:
         baked = evaluated_leaves(asset)
         verts = np.asarray(baked.vertices, np.float32)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from leaffit_usd import __version__
+from leaffit_usd.version import __version__
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.fit.result import LeafFits
 from leaffit_usd.geometry.quaternion import matrix_to_quat

@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 
-import leaffit_usd  # noqa: F401  (registers the schema)
 from leaffit_usd.errors import InputFileError
 from leaffit_usd.geometry.quaternion import from_xyzw
 from leaffit_usd.usd import schema as S

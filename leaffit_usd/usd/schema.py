@@ -1,7 +1,7 @@
 """Registration of the LeafFit codeless USD schema (``leaffit_usd/schemas/``).
 
 ``import leaffit_usd`` calls :func:`register` (or, when ``pxr`` is not loaded yet,
-:func:`announce`) before anything else can touch USD's schema registry: a plug-in registered
+:func:`announce`; both in :mod:`leaffit_usd.schema_plugin`) before anything else can touch USD's schema registry: a plug-in registered
 after ``Usd.SchemaRegistry`` was first used is ignored silently (``ApplyAPI`` then raises). Tools that do not import ``leaffit_usd`` can load the schema with
 
     export PXR_PLUGINPATH_NAME=$(python -c "import leaffit_usd.usd.schema as s; print(s.SCHEMA_DIR)")
@@ -20,7 +20,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-SCHEMA_DIR = Path(__file__).resolve().parent.parent / "schemas"
+from leaffit_usd.schema_plugin import SCHEMA_DIR, announce, register  # noqa: F401 (this module's API)
+
 API_NAME = "LeafFitMLSDeformerAPI"
 
 # Attribute names of the deformer API (kept in one place; writer and reader use these).
@@ -38,31 +39,6 @@ TARGETS_PRIMVAR = "primvars:leaffit:targets"
 DEFORMER_VERSION = 1
 
 log = logging.getLogger("leaffit_usd")
-_registered = False
-
-
-def register() -> bool:
-    """Register the schema plug-in (idempotent). Returns True if USD knows the API afterwards."""
-    global _registered
-    if _registered:
-        return True
-    from pxr import Plug
-
-    Plug.Registry().RegisterPlugins(str(SCHEMA_DIR))
-    _registered = True
-    return True
-
-
-def announce() -> None:
-    """Put ``SCHEMA_DIR`` first on ``PXR_PLUGINPATH_NAME`` (idempotent), USD's documented way to
-    name plug-ins: its plug-in registry reads the variable when it first starts, so the schema
-    is known without importing ``pxr`` now (about 0.1 s of start-up). Too late once USD's
-    registry has started; :func:`register` covers that case."""
-    import os
-
-    paths = [p for p in os.environ.get("PXR_PLUGINPATH_NAME", "").split(os.pathsep) if p]
-    if str(SCHEMA_DIR) not in paths:
-        os.environ["PXR_PLUGINPATH_NAME"] = os.pathsep.join([str(SCHEMA_DIR), *paths])
 
 
 def is_known() -> bool:

@@ -14,7 +14,6 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-import leaffit_usd  # noqa: F401  (registers the schema)
 from leaffit_usd.usd import schema as S
 
 SEVERITIES = ("error", "warning", "info")

@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-import leaffit_usd  # noqa: F401  (registers the schema before the registry is used)
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.usd import schema as S
+from leaffit_usd.version import __version__
 from leaffit_usd.usd.asset import PlantAsset
 from leaffit_usd.usd.vt import extent, matrix4d, quat_arrays, vec3f_array
 
@@ -521,7 +521,7 @@ def _write_root_layer(out: Path, a: PlantAsset, name: str, geom_rel: str, baked_
     stage.SetDefaultPrim(plant)
     Usd.ModelAPI(plant).SetKind(Kind.Tokens.component)
     Usd.ModelAPI(plant).SetAssetName(name)
-    Usd.ModelAPI(plant).SetAssetVersion(str(a.metadata.get("tool_version", leaffit_usd.__version__)))
+    Usd.ModelAPI(plant).SetAssetVersion(str(a.metadata.get("tool_version", __version__)))
     Usd.ModelAPI(plant).SetAssetIdentifier(Sdf.AssetPath(f"./{out.name}"))
     plant.SetCustomDataByKey("leaffit", _custom_data(a))
     plant.GetPayloads().AddPayload(geom_rel)
@@ -641,7 +641,7 @@ def _custom_data(a: PlantAsset) -> dict:
     md = a.metadata or {}
     params = md.get("params", {})
     return {
-        "toolVersion": str(md.get("tool_version", leaffit_usd.__version__)),
+        "toolVersion": str(md.get("tool_version", __version__)),
         "inputSha256": str(md.get("input_sha256", "")),
         "assetToInput": matrix4d(a.asset_to_input),
         "params": _flat_params(params),
