@@ -21,7 +21,7 @@ $(STAMP): pyproject.toml scripts/setup_system.sh
 	./scripts/setup_system.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[dev,formats,dask]'
+	$(PY) -m pip install -q -e '.[dev,formats,dask,scans]'
 	touch $(STAMP)
 
 $(SAMPLES): $(STAMP) samples/generate.py samples/leaves.py

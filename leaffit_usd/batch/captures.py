@@ -3,8 +3,9 @@
 Inputs (``leaffit-usd batch INPUT...``), each one of:
 
 * a capture file (any format ``load_cloud`` reads, USD included);
-* a folder, searched recursively for point-cloud captures (:data:`SEARCH_SUFFIXES`; USD files in
-  a folder are not taken: a folder of captures often also holds converted stages);
+* a folder, searched recursively for point-cloud captures (:data:`SEARCH_SUFFIXES`; USD and glTF
+  files in a folder are not taken: a folder of captures often also holds converted stages and
+  GLBs; nor ``.txt``, which may be notes);
 * a manifest, ``.csv`` (a header row) or ``.json`` (a list of objects, or ``{"captures": [...]}``)
   with one capture per row: ``input`` (required; relative to the manifest's folder) and optional
   per-capture options :data:`MANIFEST_FIELDS` (``name``, ``root``, ``up``, ``height``, ...).
@@ -31,8 +32,9 @@ from leaffit_usd.splats.formats import SUPPORTED_SUFFIXES
 
 #: suffixes accepted when a file is named explicitly: every format ``load_cloud`` reads
 FILE_SUFFIXES = tuple(s for s in SUPPORTED_SUFFIXES if s.count(".") == 1)
-#: file suffixes a folder search takes as captures (lower case): the point-cloud formats
-SEARCH_SUFFIXES = tuple(s for s in FILE_SUFFIXES if not s.startswith(".usd"))
+#: file suffixes a folder search takes as captures (lower case): the point-cloud formats, not
+#: USD or glTF (converted assets sit beside captures) nor ``.txt`` (notes do)
+SEARCH_SUFFIXES = tuple(s for s in FILE_SUFFIXES if not s.startswith((".usd", ".gl", ".txt")))
 MANIFEST_SUFFIXES = (".csv", ".json")
 
 #: manifest column -> ConvertOptions field, with the value's type

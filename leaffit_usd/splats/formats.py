@@ -3,6 +3,14 @@
 Formats (the key :func:`detect_format` returns -> what reads it):
 
 * ``ply``            INRIA 3DGS PLY                  -> :mod:`leaffit_usd.splats.ply` (ours)
+* ``ply_2dgs``, ``ply_gof`` 2DGS (no ``scale_2``) and Gaussian Opacity Fields (``filter_3D``)
+  PLYs                                                -> the same reader, see
+  :mod:`leaffit_usd.splats.ply_variants`
+* ``ply_points``     a point-cloud PLY (``x y z [rgb]``, no 3DGS properties),
+  ``xyz`` ASCII points (``.xyz`` / ``.txt`` / ``.pts``), ``las`` LAS / LAZ (laspy, ``[scans]``
+  extra)                                              -> :mod:`leaffit_usd.splats.scans`: one
+  Gaussian per point from its neighbourhood (:mod:`leaffit_usd.splats.points`)
+* ``gltf``           glTF / GLB with ``KHR_gaussian_splatting`` -> :mod:`leaffit_usd.splats.gltf_splats`
 * ``compressed_ply`` PlayCanvas / SuperSplat compressed PLY (``element chunk`` + packed uint32
   vertex records, 8-bit SH)                           -> gsply (``[formats]`` extra)
 * ``spz``            Niantic SPZ, v1-v3 (gzip) and v4 (``NGSP`` container, zstd) -> gsply
@@ -19,8 +27,9 @@ decoders agree with PlayCanvas's splat-transform, the formats' reference writer,
 formats' quantisation (tests/splats/test_splats_formats.py). gaussforge also covers ``.splat``
 and ``.ksplat`` but its ``read()`` fails on SH-degree-0 data (every ``.splat``, any SH-0 capture).
 
-Detection is by content (magic bytes, the PLY header, the ZIP's member names), then by
-extension; ``.splat`` has no magic, so it is recognised by its extension only.
+Detection is by content (magic bytes, the PLY header's properties, the ZIP's member names), then
+by extension; ``.splat`` and the ASCII point lists have no magic, so they are recognised by
+their extension only.
 """
 from __future__ import annotations
 
@@ -33,29 +42,47 @@ import numpy as np
 
 from leaffit_usd.errors import InputFileError
 from leaffit_usd.splats.cloud import SH_C0, GaussianCloud, drop_invalid
+from leaffit_usd.splats.ply_variants import ply_kind
 
+_FROM_POINTS = "Gaussians built from each point's neighbourhood"
 FORMAT_NAMES = {
     "ply": "INRIA 3DGS PLY",
+    "ply_2dgs": "2DGS PLY (surfels, thin third scale added)",
+    "ply_gof": "Gaussian Opacity Fields PLY (3D filter applied)",
+    "ply_points": f"point cloud (PLY x y z [rgb]), {_FROM_POINTS}",
+    "xyz": f"point cloud (ASCII x y z [rgb]), {_FROM_POINTS}",
+    "las": f"point cloud (LAS/LAZ), {_FROM_POINTS}",
+    "gltf": "glTF KHR_gaussian_splatting",
     "compressed_ply": "compressed PLY (PlayCanvas/SuperSplat)",
     "spz": "SPZ (Niantic)",
     "sog": "SOG (PlayCanvas)",
     "splat": ".splat (antimatter15)",
     "usd": "USD ParticleField3DGaussianSplat",
 }
-SUPPORTED_SUFFIXES = (".ply", ".compressed.ply", ".spz", ".sog", ".splat", ".usd", ".usda",
-                      ".usdc", ".usdz")
+SUPPORTED_SUFFIXES = (".ply", ".compressed.ply", ".spz", ".sog", ".splat", ".glb", ".gltf",
+                      ".xyz", ".txt", ".pts", ".las", ".laz", ".usd", ".usda", ".usdc", ".usdz")
 INSTALL_HINT = "pip install 'leaffit-usd[formats]'"
 _USD_SUFFIXES = (".usd", ".usda", ".usdc", ".usdz")
 _GZIP, _NGSP, _ZIP = b"\x1f\x8b", b"NGSP", b"PK\x03\x04"
 
 
-def _ply_is_compressed(path: Path) -> bool:
-    """True when the PLY header declares PlayCanvas's ``chunk`` element and packed vertex fields."""
+def _ply_kind(path: Path) -> str:
+    """``compressed_ply`` when the PLY header declares PlayCanvas's ``chunk`` element and packed
+    vertex fields, else :func:`~leaffit_usd.splats.ply_variants.ply_kind` of the vertex properties."""
     with open(path, "rb") as f:
         head = f.read(1 << 16)
     end = head.find(b"end_header")
     header = head if end < 0 else head[:end]
-    return b"element chunk" in header and b"packed_position" in header
+    if b"element chunk" in header and b"packed_position" in header:
+        return "compressed_ply"
+    names, in_vertex = [], False
+    for line in header.decode("ascii", "replace").splitlines():
+        tok = line.split()
+        if tok[:1] == ["element"]:
+            in_vertex = tok[1:2] == ["vertex"]
+        elif tok[:1] == ["property"] and in_vertex and len(tok) >= 3:
+            names.append(tok[-1])
+    return ply_kind(names)
 
 
 def _zip_has_meta(path: Path) -> bool:
@@ -91,7 +118,11 @@ def detect_format(path: str | os.PathLike) -> str:
         raise InputFileError(path, "is empty (0 bytes)")
     name, suffix = path.name.lower(), path.suffix.lower()
     if head.startswith(b"ply"):
-        return "compressed_ply" if _ply_is_compressed(path) else "ply"
+        return _ply_kind(path)
+    if head.startswith(b"glTF"):
+        return "gltf"
+    if head.startswith(b"LASF"):
+        return "las"
     if head.startswith(b"PXR-USDC") or head.startswith(b"#usda"):
         return "usd"
     if head.startswith(_ZIP):
@@ -111,8 +142,14 @@ def detect_format(path: str | os.PathLike) -> str:
         return suffix[1:]
     if suffix in _USD_SUFFIXES:
         return "usd"
+    if suffix in (".glb", ".gltf"):
+        return "gltf"
+    if suffix in (".las", ".laz"):
+        return "las"
+    if suffix in (".xyz", ".txt", ".pts"):
+        return "xyz"
     raise InputFileError(path, f"unknown file type {suffix or '(no extension)'!r}; expected a 3DGS "
-                               f"file ({', '.join(SUPPORTED_SUFFIXES)})")
+                               f"file or a point cloud ({', '.join(SUPPORTED_SUFFIXES)})")
 
 
 def _import_gsply(path, kind: str):

@@ -3,6 +3,11 @@
 Layout written: ``x y z nx ny nz f_dc_0..2 f_rest_* opacity scale_0..2 rot_0..3`` then any extra
 properties, all float32 except extras (original type). Reading is one ``np.fromfile`` into a
 structured array, so a 1M-Gaussian file loads in well under a second.
+
+:func:`read_ply` also reads the 2DGS (no ``scale_2``) and Gaussian Opacity Fields (``filter_3D``)
+layouts, converted as :mod:`leaffit_usd.splats.ply_variants` says; a plain point-cloud PLY is
+refused here and read by :func:`leaffit_usd.splats.load_cloud` (through
+:func:`read_vertex_table`).
 """
 from __future__ import annotations
 
@@ -15,6 +20,7 @@ import numpy as np
 from leaffit_usd.errors import InputFileError
 from leaffit_usd.io_util import atomic_path
 from leaffit_usd.splats.cloud import REST_COUNTS, GaussianCloud, drop_invalid
+from leaffit_usd.splats.ply_variants import apply_3d_filter, ply_kind, surfel_third_scale
 
 _TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -85,9 +91,10 @@ def _parse_header(f, path):
 
 
 def read_ply(path: str | os.PathLike, drop_bad: bool = True) -> GaussianCloud:
-    """Read an INRIA 3DGS PLY into a GaussianCloud (input frame, file order).
+    """Read an INRIA 3DGS PLY (or a 2DGS or GOF one) into a GaussianCloud (input frame, file order).
 
-    Raises ``InputFileError`` (a ``UserError``) for anything that is not a usable 3DGS PLY:
+    A 2DGS surfel gets a thin third scale and a GOF file's ``filter_3D`` is applied to scales and
+    opacities (:mod:`leaffit_usd.splats.ply_variants`). Raises ``InputFileError`` (a ``UserError``) for anything that is not a usable 3DGS PLY:
     not PLY, malformed header, missing properties, non-numeric properties, truncated data,
     no Gaussians. With ``drop_bad`` a few NaN/Inf or zero-quaternion Gaussians are dropped with
     a warning (their file positions stay in ``file_index``).
@@ -100,7 +107,11 @@ def read_ply(path: str | os.PathLike, drop_bad: bool = True) -> GaussianCloud:
         if any(n for _, n, _ in before):
             raise InputFileError(path, "PLY has data elements before 'vertex'; not a 3DGS file")
         names = [n for n, _ in props]
-        missing = [n for n in _REQUIRED if n not in names]
+        kind = ply_kind(names)
+        if kind == "ply_points":
+            raise InputFileError(path, "is a point-cloud PLY (x y z, no 3DGS properties); load it with "
+                                       "leaffit_usd.splats.load_cloud, which builds Gaussians from it")
+        missing = [n for n in _REQUIRED if n not in names and not (kind == "ply_2dgs" and n == "scale_2")]
         if missing:
             raise InputFileError(path, f"not a 3DGS PLY: missing properties {', '.join(missing)}")
         lists = [n for n, t in props if t == "list"]
@@ -137,7 +148,41 @@ def read_ply(path: str | os.PathLike, drop_bad: bool = True) -> GaussianCloud:
                     raise InputFileError(path, f"truncated: could read only {start + len(block)} "
                                                f"of {count} Gaussians")
                 layout.fill(cloud, block, start)
+    if kind == "ply_2dgs":
+        cloud.log_scales[:, 2] = surfel_third_scale(cloud.log_scales[:, :2])
+    elif kind == "ply_gof":
+        f = cloud.extra.pop("filter_3D")
+        cloud.log_scales, cloud.opacity_logits = apply_3d_filter(cloud.log_scales, cloud.opacity_logits, f)
     return drop_invalid(cloud, str(path)) if drop_bad else cloud
+
+
+def read_vertex_table(path: str | os.PathLike) -> np.ndarray:
+    """Every property of a PLY's ``vertex`` element as a structured array (N,), native byte order.
+
+    For point-cloud PLYs (any properties, scalar only). Raises ``InputFileError`` for what
+    :func:`read_ply` refuses (not PLY, malformed header, list properties, truncated data).
+    """
+    path = Path(path)
+    with open(path, "rb") as f:
+        fmt, count, props, header_len, before = _parse_header(f, path)
+        if any(n for _, n, _ in before):
+            raise InputFileError(path, "PLY has data elements before 'vertex'; not a point cloud")
+        lists = [n for n, t in props if t == "list"]
+        if lists:
+            raise InputFileError(path, f"unsupported list property {lists[0]!r} in 'vertex'")
+        if len({n for n, _ in props}) != len(props):
+            raise InputFileError(path, "duplicate property names in 'vertex'")
+        if count == 0:
+            raise InputFileError(path, "contains no points")
+        if fmt == "ascii":
+            return _read_ascii(f, path, count, props, header_len)
+        order = "<" if fmt == "binary_little_endian" else ">"
+        dtype = np.dtype([(n, order + t) for n, t in props])
+        f.seek(header_len)
+        data = np.fromfile(f, dtype=dtype, count=count)
+    if len(data) != count:
+        raise InputFileError(path, f"truncated: header declares {count} points, file holds {len(data)}")
+    return data.astype(dtype.newbyteorder("="))
 
 
 _CHUNK = 131_072  # Gaussians per read (32 MB at SH degree 3)
@@ -181,19 +226,20 @@ class _Layout:
         known = set(_REQUIRED) | {f"f_rest_{i}" for i in range(n_rest)}
         self.extra = [k for k in names if k not in known]
         kinds = {dtype[k].kind + str(dtype[k].itemsize) for k in names}
+        self.scale_names = tuple(k for k in ("scale_0", "scale_1", "scale_2") if k in names)
         self.uniform = kinds == {"f4"} and dtype.itemsize == 4 * len(names)
         self.float_order = dtype[names[0]].byteorder if self.uniform else None
         col = {k: i for i, k in enumerate(names)}
         self.groups = {
             "means": [col[k] for k in ("x", "y", "z")],
-            "log_scales": [col[k] for k in ("scale_0", "scale_1", "scale_2")],
+            "log_scales": [col[k] for k in self.scale_names],
             "quats": [col[k] for k in ("rot_0", "rot_1", "rot_2", "rot_3")],
             "dc": [col[k] for k in ("f_dc_0", "f_dc_1", "f_dc_2")],
             "opacity": col["opacity"],
             # f_rest is channel-major: all coefficients of R, then G, then B
             "rest": [[col[f"f_rest_{c * self.m + j}"] for j in range(self.m)] for c in range(3)],
         }
-        self.names = {"means": ("x", "y", "z"), "log_scales": ("scale_0", "scale_1", "scale_2"),
+        self.names = {"means": ("x", "y", "z"), "log_scales": self.scale_names,
                       "quats": ("rot_0", "rot_1", "rot_2", "rot_3"), "dc": ("f_dc_0", "f_dc_1", "f_dc_2")}
 
     def allocate(self, n: int) -> GaussianCloud:
@@ -209,7 +255,7 @@ class _Layout:
         if self.uniform:
             t = block.view(np.dtype(self.dtype[0].str)).reshape(len(block), -1)
             cloud.means[sl] = t[:, g["means"]]
-            cloud.log_scales[sl] = t[:, g["log_scales"]]
+            cloud.log_scales[sl, :len(self.scale_names)] = t[:, g["log_scales"]]
             cloud.quats[sl] = t[:, g["quats"]]
             cloud.opacity_logits[sl] = t[:, g["opacity"]]
             cloud.sh[sl, 0, :] = t[:, g["dc"]]
