@@ -77,12 +77,14 @@ def test_capture_names(tmp_path):
     (tmp_path / "in" / "a" / "ficus.ply").write_bytes(b"x")
     (tmp_path / "in" / "b.spz").write_bytes(b"x")
     (tmp_path / "in" / "notes.txt").write_bytes(b"x")
+    (tmp_path / "in" / "scan.xyz").write_bytes(b"x")       # a point-cloud scan: a capture
+    (tmp_path / "in" / "b.glb").write_bytes(b"x")          # a converted asset beside them: not one
     (tmp_path / "in" / "out").mkdir()
     (tmp_path / "in" / "out" / "old.ply").write_bytes(b"x")     # the output folder: not searched
     caps = collect_captures([tmp_path / "in"], exclude=tmp_path / "in" / "out")
     got = {c.name: c.path.relative_to(tmp_path / "in").as_posix() for c in caps}
     assert got == {"ficus": "a/ficus.ply", "ficus-2": "ficus/point_cloud/iteration_30000/point_cloud.ply",
-                   "b": "b.spz"}
+                   "b": "b.spz", "scan": "scan.xyz"}
     assert [c.renamed_from for c in caps if c.name == "ficus-2"] == ["ficus"]
 
 
