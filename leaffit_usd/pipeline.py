@@ -28,6 +28,7 @@ from leaffit_usd.errors import InputFileError, ParameterError
 from leaffit_usd.fit.params import FitParams
 from leaffit_usd.isolate import IsolateParams
 from leaffit_usd.isolate.stage import frame_from_isolation, isolate_stage  # noqa: F401 (API)
+from leaffit_usd.prepare import FrameOptions, PreparedPlant
 from leaffit_usd.mesh.stem import StemParams
 from leaffit_usd.mesh.template import MeshParams
 from leaffit_usd.segment.auto import SegmentParams
@@ -194,7 +195,6 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     """
     from leaffit_usd.io_util import file_sha256
     from leaffit_usd.splats import load_cloud
-    from leaffit_usd.splats.transform import transform_cloud
     from leaffit_usd.usd.assemble import DEFAULT_SHEET_OFFSET, asset_from_results
     from leaffit_usd.runtime.evaluator import asset_leaves
     from leaffit_usd.export.gltf import GLTF_FORMATS, GltfOptions, write_gltf
@@ -211,33 +211,37 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
 
     fit_p, mesh_p, stem_p = o.fit, o.mesh, o.stem
 
-    T = _Timer(9 if o.tint else 8)
+    T = _Timer(8 if o.tint else 7)
     with T.stage("load", f"loading {input_path.name}"):
         cloud_in = load_cloud(input_path)
         sha = file_sha256(input_path)
         log.info("      %d Gaussians (SH degree %d)", len(cloud_in), cloud_in.sh_degree)
-    with T.stage("isolate", "isolating the plant (ground, pot, soil, background, floaters)"
-                 if not o.keep_scene else "isolation off (--keep-scene)"):
+    front = {}
+    with T.stage("isolate", "isolating the plant (ground, pot, soil, background, floaters), "
+                 "choosing the frame" if not o.keep_scene else "isolation off (--keep-scene), "
+                 "choosing the frame"):
         # the plant in an order of positions alone, so the asset does not depend on the file's
-        # order (a converter may sort the splats, e.g. by Morton code)
-        cloud, iso = isolate_stage(cloud_in, o.keep_scene, o.crop, o.up, o.isolate, canonical=True,
-                                   root=o.root, root_index=o.root_index)
-    with T.stage("frame", "choosing the frame (up axis, root)"):
-        choice = frame_from_isolation(cloud, iso, o.up, o.root, o.root_index, cloud=cloud_in)
-        frame, root_index = choice.frame, choice.root_index
+        # order (a converter may sort the splats, e.g. by Morton code); the same front half as
+        # `segment` and `edit` (leaffit_usd.prepare)
+        prep = PreparedPlant.from_cloud(cloud_in, FrameOptions(o.up, o.root, o.root_index),
+                                        o.isolate, o.keep_scene, o.crop, timings=front)
+        frame, root_index, iso, cloud, cw = prep.frame, prep.root_index, prep.iso, prep.plant, prep.working
         # memory: from here on the loaded cloud is needed only for its count and the classes in
         # file order; dropping it (and, below, the isolated input-frame cloud) keeps one full
         # copy of the Gaussians alive instead of three (~250 MB per million at SH degree 3)
         loaded = _Loaded(len(cloud_in), encode_classes(cloud_in, iso))
         del cloud_in
-        cw = transform_cloud(cloud, frame.input_to_working)
+        prep.loaded = None
         pts = np.asarray(cw.means, np.float64)
         if o.edits is None:   # --edits replays its strokes on the input-frame cloud
-            cloud = _FileIds.of(cloud)
+            prep.normals   # noqa: B018 - computed now, from the input-frame plant it then drops
+            cloud = prep.plant = _FileIds.of(cloud)
+    T.timings.update(front)
     with T.stage("segment", "segmenting leaves" if o.labels is None else f"reading labels {o.labels}"):
-        seg = _segment_stage(cw, cloud, root_index, o, input_path)
+        seg = _segment_stage(prep, cloud, o, input_path)
         n_leaves = seg.n_leaves
         cloud = _FileIds.of(cloud)
+        prep = None
     with T.stage("fit", f"fitting the template to {n_leaves} leaves (K={fit_p.K}, {fit_p.steps} steps)"):
         fits = fit_leaves(cw, seg, fit_p)
     with T.stage("mesh", "building the template mesh and textures"):
@@ -320,12 +324,14 @@ def _check_options(o: ConvertOptions, output_path: Path) -> None:
         p.validate()
 
 
-def _segment_stage(cw, cloud, root_index: int, o: ConvertOptions, input_path: Path):
-    """The Segmentation of the working-frame cloud ``cw``: automatic, or --labels, then --edits.
-    Raises InputFileError when it has no leaves."""
+def _segment_stage(prep, cloud, o: ConvertOptions, input_path: Path):
+    """The Segmentation of the prepared plant ``prep`` (its working cloud): automatic, or
+    --labels, then --edits (``cloud``: the plant, input frame). Raises InputFileError when it has
+    no leaves."""
+    cw, root_index = prep.working, prep.root_index
     auto_seg = None
     if o.labels is None:
-        auto_seg = auto_segment(cw, root_index, o.segment)
+        auto_seg = prep.segment(o.segment)
         labels = np.asarray(auto_seg.labels, np.int32)
     else:
         labels = load_labels(o.labels, cloud)
@@ -335,6 +341,8 @@ def _segment_stage(cw, cloud, root_index: int, o: ConvertOptions, input_path: Pa
     if o.labels is None and o.edits is None:
         seg = auto_seg
     else:
+        if auto_seg is None:  # the stem needs the automatic segmentation's rootward tree
+            auto_seg = prep.segment(o.segment)
         seg = _segmentation_from_labels(cw, labels, root_index, o.segment, auto_seg)
     log.info("      %d leaves", seg.n_leaves)
     if seg.n_leaves == 0:

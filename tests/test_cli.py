@@ -62,7 +62,7 @@ def _bad_files(d: Path) -> dict:
     files["zero_quaternions"] = (raw_ply(d / "zeroq.ply", INRIA, rows), "zero-length quaternion")
     files["directory"] = (d, "directory")
     files["missing_file"] = (d / "does_not_exist.ply", "no such file")
-    u = d / "plant.xyz"
+    u = d / "plant.obj"
     u.write_text("1 2 3\n")
     files["unknown_extension"] = (u, "unknown file type")
     a = d / "trunc_ascii.ply"

@@ -40,11 +40,11 @@ def _spy(monkeypatch):
     """Weak references to the loaded and the isolated cloud, and whether each was still alive
     when the fit started."""
     import leaffit_usd.fit.register as reg
-    import leaffit_usd.pipeline as pipeline
+    import leaffit_usd.prepare as prepare
     import leaffit_usd.splats as splats
 
     refs, alive_at_fit = {}, {}
-    real_load, real_isolate, real_fit = splats.load_cloud, pipeline.isolate_stage, reg.fit_leaves
+    real_load, real_isolate, real_fit = splats.load_cloud, prepare.isolate_stage, reg.fit_leaves
 
     def load(*a, **k):
         c = real_load(*a, **k)
@@ -62,7 +62,7 @@ def _spy(monkeypatch):
         return real_fit(*a, **k)
 
     monkeypatch.setattr(splats, "load_cloud", load)
-    monkeypatch.setattr(pipeline, "isolate_stage", isolate)
+    monkeypatch.setattr(prepare, "isolate_stage", isolate)   # the front half convert shares
     monkeypatch.setattr(reg, "fit_leaves", fit)
     return alive_at_fit
 

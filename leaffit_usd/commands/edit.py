@@ -42,7 +42,7 @@ log = logging.getLogger("leaffit_usd")
 
 
 def add_arguments(p) -> None:
-    from leaffit_usd.commands._args import add_frame_arguments
+    from leaffit_usd.commands._args import add_frame_arguments, add_isolate_arguments
     from leaffit_usd.segment.manual import N_SAMPLES
 
     p.add_argument("input", metavar="INPUT", help="3DGS capture (.ply, .compressed.ply, .spz, .sog, .splat or USD)")
@@ -61,6 +61,7 @@ def add_arguments(p) -> None:
     p.add_argument("--min-opacity", type=float, default=0.0,
                    help="Gaussians less opaque than this cannot be picked (default %(default)g: all)")
     add_frame_arguments(p)  # for the automatic segmentation the session starts from (as in convert)
+    add_isolate_arguments(p)  # the page shows the plant as convert isolates it
 
 
 def read_labels_file(path, cloud) -> tuple[np.ndarray, int | None, np.ndarray | None]:
@@ -117,26 +118,27 @@ def _file_confidence(path, conf, raw, cloud) -> np.ndarray | None:
     return conf[kept - 1]
 
 
-def automatic_labels(cloud, up="auto", root="auto", root_index=None):
-    """(labels, root index, Frame, confidence) from the automatic segmentation, as convert does.
+def prepare_capture(inp, up="auto", root="auto", root_index=None, keep_scene=False, crop=None):
+    """The capture at ``inp`` as ``convert`` prepares it (``leaffit_usd.prepare.PreparedPlant``:
+    isolation, canonical order, frame): the page shows the isolated plant, and its automatic
+    labels are convert's. up, root : the --up / --root strings; root_index : --root-index.
+    Raises ParameterError for a bad --up / --root."""
+    from leaffit_usd.prepare import FrameOptions, PreparedPlant
 
-    up, root : the --up / --root strings ("auto", "+y", "X,Y,Z" ...); root_index : --root-index.
-    labels : (N,) int32, cloud order; confidence : (L,) float64 in [0, 1] per leaf (the
-    Segmentation's), or None when the segmentation failed (then every Gaussian is unassigned).
-    """
-    from leaffit_usd.pipeline import auto_segment
-    from leaffit_usd.segment.auto import SegmentParams
-    from leaffit_usd.splats.frame import make_frame
-    from leaffit_usd.splats.transform import transform_cloud
+    fo = FrameOptions(_args.parse_up(up), _args.parse_root(root), root_index)
+    return PreparedPlant.open(inp, fo, keep_scene=keep_scene, crop=crop)
 
+
+def automatic_labels(prep):
+    """(labels, root index, Frame, confidence) from the automatic segmentation of a
+    ``PreparedPlant``, as convert does: labels : (P,) int32, plant order; confidence : (L,)
+    float64 in [0, 1] per leaf, or None when the segmentation failed (then every Gaussian is
+    unassigned)."""
     from leaffit_usd.errors import UserError
 
-    choice = make_frame(cloud, up=_args.parse_up(up), root=_args.parse_root(root),
-                        root_index=root_index)  # bad --up/--root: an error
-    cw = transform_cloud(cloud, choice.frame.input_to_working)
     conf = None
     try:
-        seg = auto_segment(cw, choice.root_index, SegmentParams())
+        seg = prep.segment()
         labels = np.asarray(seg.labels, np.int32)
         log.info("edit: %d leaves found", int(labels.max(initial=0)))
         if seg.confidence is not None:
@@ -148,8 +150,8 @@ def automatic_labels(cloud, up="auto", root="auto", root_index=None):
     except UserError as e:  # a plant the automatic method cannot handle is what edit is for
         log.warning("edit: automatic segmentation failed (%s); starting with every Gaussian "
                     "unassigned", e)
-        labels = np.zeros(len(cloud), np.int32)
-    return labels, int(choice.root_index), choice.frame, conf
+        labels = np.zeros(len(prep.plant), np.int32)
+    return labels, int(prep.root_index), prep.frame, conf
 
 
 def _open_browser(url: str) -> None:
@@ -189,7 +191,6 @@ def _interrupt(*_):
 def run(args) -> int:
     from leaffit_usd.errors import ParameterError
     from leaffit_usd.segment.edits import load_edits, to_cloud_operations
-    from leaffit_usd.splats import load_cloud
     from leaffit_usd.viewer.server import ViewerServer, build_session
 
     if not 0 <= args.port <= 65535:
@@ -199,16 +200,17 @@ def run(args) -> int:
     if args.labels and args.empty:
         raise ParameterError("--empty", "not together with --labels", True)
     inp = Path(args.input)
-    cloud = load_cloud(inp)
-    frame = conf = None
+    prep = prepare_capture(inp, args.up, args.root, args.root_index, args.keep_scene, args.crop)
+    cloud = prep.plant   # the plant as convert isolates it (file_index: each Gaussian's identity)
+    frame, conf = prep.frame, None
     if args.labels:
         labels, root, conf = read_labels_file(args.labels, cloud)
     elif args.empty:
-        labels, root = np.zeros(len(cloud), np.int32), None
+        labels, root = np.zeros(len(cloud), np.int32), prep.root_index
         log.info("edit: starting with every Gaussian unassigned")
     else:
         log.info("edit: automatic segmentation (as convert does; --empty to skip, --labels to reuse one)")
-        labels, root, frame, conf = automatic_labels(cloud, args.up, args.root, args.root_index)
+        labels, root, frame, conf = automatic_labels(prep)
     edits = load_edits(args.edits, inp) if args.edits else None
     stem = inp.name.rsplit(".", 1)[0]
     edits_out = Path(args.edits_out) if args.edits_out else inp.with_name(stem + ".edits.json")

@@ -91,10 +91,8 @@ def params_from_args(args):
 # segment_time.py: 2.64 -> 2.51 s with the up axis estimated, same labels)
 @one_blas_thread
 def run(args) -> int:
-    from leaffit_usd.geometry.sampling import grid_order
     from leaffit_usd.io_util import atomic_path
-    from leaffit_usd.segment.auto import segment_plant, working_normals
-    from leaffit_usd.isolate.stage import frame_from_isolation, isolate_stage
+    from leaffit_usd.prepare import FrameOptions, PreparedPlant
     from leaffit_usd.segment.result import DOUBTFUL_CONFIDENCE
     from leaffit_usd.splats import load_cloud
 
@@ -105,21 +103,17 @@ def run(args) -> int:
     params = params_from_args(args)
     t0 = time.perf_counter()
     cloud_in = load_cloud(args.input, prim=args.prim)
-    # grid order: the labels do not depend on the Gaussians' order, and the kd-tree queries over
-    # the cloud run faster on coherent memory (the output is written in file order)
-    cloud_in = cloud_in.subset(grid_order(cloud_in.means))
     t_read = time.perf_counter() - t0
     t1 = time.perf_counter()
     fo = _args.frame_options(args)
-    cloud, iso = isolate_stage(cloud_in, getattr(args, "keep_scene", False), getattr(args, "crop", None),
-                               fo["up"], root=fo["root"], root_index=fo["root_index"])
-    t_iso = time.perf_counter() - t1
-    choice = frame_from_isolation(cloud, iso, cloud=cloud_in, **fo)
-    frame, root = choice.frame, choice.root_index
-    pts = frame.to_working(cloud.means)
-    normals = working_normals(cloud, frame.rotation)
+    front = {}
+    prep = PreparedPlant.from_cloud(cloud_in, FrameOptions(**fo), None, getattr(args, "keep_scene", False),
+                                    getattr(args, "crop", None), timings=front)   # as convert does
+    t_iso = front["isolate"]
+    cloud, iso, frame = prep.plant, prep.iso, prep.frame
+    pts = np.asarray(prep.working.means, np.float64)
     timings = {}
-    seg = segment_plant(pts, root, params, normals=normals, timings=timings)
+    seg = prep.segment(params, timings=timings)
     t_seg = time.perf_counter() - t1
     labels = seg.labels
     if getattr(args, "edits", None):
@@ -132,9 +126,8 @@ def run(args) -> int:
         return fi[np.asarray(idx, np.int64)].astype(np.int64)
 
     dist = cloud.to_file_order(seg.dist_root.astype(np.float32), fill=np.nan).astype(np.float32)
-    file_labels = cloud.to_file_order(labels, fill=0).astype(np.int32)
-    iso_classes = cloud_in.to_file_order(np.asarray(iso.classes, np.uint8), fill=255).astype(np.uint8)
-    file_labels[(iso_classes != 0) & (iso_classes != 255)] = -1
+    file_labels = prep.file_labels(labels)
+    iso_classes = prep.file_classes()
     out = {
         "labels": file_labels,
         "isolation": iso_classes,

@@ -206,16 +206,18 @@ def test_cli_missing_input(capsys, tmp_path):
     assert "nope.ply" in capsys.readouterr().err
 
 
-def test_automatic_start_and_its_fallback(plant, monkeypatch, caplog):
+def test_automatic_start_and_its_fallback(plant, monkeypatch, caplog, tmp_path):
     """edit starts from convert's automatic segmentation; if that fails, from an empty one."""
     import logging
 
-    from leaffit_usd.commands.edit import automatic_labels
+    from leaffit_usd.commands.edit import automatic_labels, prepare_capture
     from leaffit_usd.errors import UserError
+    from leaffit_usd.prepare import FrameOptions, PreparedPlant
 
     cloud = plant[0]
-    labels, root, frame, conf = automatic_labels(cloud, up="+z")
-    assert labels.shape == (len(cloud),) and labels.dtype == np.int32 and 0 <= root < len(cloud)
+    prep = PreparedPlant.from_cloud(cloud, FrameOptions(up=np.array([0.0, 0.0, 1.0])))
+    labels, root, frame, conf = automatic_labels(prep)
+    assert labels.shape == (len(prep.plant),) and labels.dtype == np.int32 and 0 <= root < len(prep.plant)
     assert frame.height > 0
     # the segmentation's confidence comes out with the labels: one value in [0, 1] per leaf
     assert labels.max() >= 1 and conf.shape == (labels.max(),) and ((conf >= 0) & (conf <= 1)).all()
@@ -223,14 +225,15 @@ def test_automatic_start_and_its_fallback(plant, monkeypatch, caplog):
     def fail(*a, **k):
         raise UserError("no apex found")
 
-    monkeypatch.setattr("leaffit_usd.pipeline.auto_segment", fail)
+    monkeypatch.setattr(PreparedPlant, "segment", fail)
     with caplog.at_level(logging.WARNING, logger="leaffit_usd"):
-        labels, _, _, conf = automatic_labels(cloud, up="+z")
+        labels, _, _, conf = automatic_labels(prep)
     assert not labels.any() and conf is None and "automatic segmentation failed" in caplog.text
     from leaffit_usd.errors import ParameterError
 
+    write_ply(cloud, tmp_path / "p.ply")
     with pytest.raises(ParameterError):  # a bad --up is an error, not a fallback
-        automatic_labels(cloud, up="sideways")
+        prepare_capture(tmp_path / "p.ply", up="sideways")
 
 
 # ---- per-leaf confidence ------------------------------------------------------------------
