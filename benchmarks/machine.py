@@ -5,8 +5,8 @@ not across machines: torch and OpenBLAS choose their kernels by the CPU's vector
 (AVX-512, AVX2, ...), and a fresh install may take other numpy / scipy releases within
 pyproject's ranges. Either changes the last bits of the registration's sums, and its 200 Adam
 steps carry that into the third digit of a fit error or a render IoU (``benchmarks/render.py``:
-overlap's worst-view IoU 0.895 in session 16, 0.899 in session 17, the same code, both runs
-repeatable to the byte on their own machine). Every results JSON therefore records this block,
+overlap's worst-view IoU 0.895 on one machine, 0.899 on an AMD EPYC with AVX2, the same code, both
+runs repeatable to the byte on their own machine). Every results JSON therefore records this block,
 so two tables can be told apart by their code or by their machine.
 """
 from __future__ import annotations

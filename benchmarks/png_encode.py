@@ -4,7 +4,7 @@ given folders (e.g. ``benchmarks/render.py --work DIR``'s converted plants).
 
 Per setting: the mean encode time per image (best of ``--repeats``), the mean size, and the
 smallest / largest size ratio against the first setting (level 9 with libpng's adaptive filters,
-what image_io wrote before session 17). Every encode is decoded and checked equal to its source.
+what image_io wrote before 65ac14e). Every encode is decoded and checked equal to its source.
 
     .venv/bin/python benchmarks/png_encode.py DIR [DIR ...] [--repeats 3]
 """

@@ -29,8 +29,8 @@ class FitParams:
         refinement's outline term the field follows each leaf's own outline, and 32 handles
         could not follow a hooked tip (overlap's worst view, IoU 0.899). 13 render plants, K = 48
         and reg 0.03 against 32 and 0.01: leaf HD, Corr, PSNR and SSIM better on 12, outline
-        error on 11 (``benchmarks/render.py``, README, render section, session 19). 64 threw a
-        region of two apple leaves off the leaf (session 18).
+        error on 11 (``benchmarks/render.py``; docs/fitting.md, "Control points"). 64 threw a
+        region of two apple leaves off the leaf (``benchmarks/results/render_k64.json``).
     steps, lr : Adam iterations (200) and learning rate (7e-3)
     lam : Chamfer weight lambda (0.7); reg : MLS regulariser (fraction of sigma; 0.03, why:
         ``fit.mls``)
