@@ -114,38 +114,12 @@ class _Timer:
 
 
 def load_labels(path, cloud) -> np.ndarray:
-    """Labels from a segmentation .npz (file order) -> (N,) int32 in cloud order.
+    """Labels from a segmentation .npz (file order) -> (N,) int32 in cloud order
+    (``segment.labels_file.cloud_labels``: negative values unassigned, leaves renumbered 1..L).
+    Raises InputFileError for a missing/malformed file or a count that does not match."""
+    from leaffit_usd.segment.labels_file import cloud_labels
 
-    Only the ``labels`` array is required (one per Gaussian of the input FILE; 0 = stem;
-    negative values, e.g. -1 = noise, count as unassigned).
-    Raises InputFileError for a missing/malformed file or a count that does not match.
-    """
-    p = Path(path)
-    if not p.is_file():
-        raise InputFileError(p, "no such file")
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            if "labels" not in z.files:
-                raise InputFileError(p, f"no 'labels' array (found {', '.join(z.files) or 'nothing'})")
-            labels = np.asarray(z["labels"])
-    except InputFileError:
-        raise
-    except Exception as e:  # noqa: BLE001 - any unreadable npz is the user's file
-        raise InputFileError(p, f"not a readable .npz ({type(e).__name__}: {e})") from None
-    if labels.ndim != 1 or labels.dtype.kind not in "iu":
-        raise InputFileError(p, f"'labels' must be a 1-D integer array, is {labels.dtype} {labels.shape}")
-    if len(labels) != cloud.file_count:
-        raise InputFileError(p, f"{len(labels)} labels but the input has {cloud.file_count} Gaussians "
-                                "(one label per Gaussian, file order)")
-    out = labels[np.asarray(cloud.file_index)].astype(np.int32)
-    if out.size and out.min() < 0:  # e.g. -1 = noise in ground-truth files: treat as unassigned
-        log.info("      %d Gaussians with negative labels treated as unassigned (0)", int((out < 0).sum()))
-        out[out < 0] = 0
-    # renumber the leaves present 1..L (a hand-made file may have gaps)
-    uniq = np.unique(out[out > 0])
-    remap = np.zeros(int(out.max(initial=0)) + 1, np.int32)
-    remap[uniq] = np.arange(1, len(uniq) + 1, dtype=np.int32)
-    return remap[out]
+    return cloud_labels(path, cloud)[0]
 
 
 def auto_segment(cloud_working, root_index, seg_params):

@@ -65,57 +65,12 @@ def add_arguments(p) -> None:
 
 
 def read_labels_file(path, cloud) -> tuple[np.ndarray, int | None, np.ndarray | None]:
-    """(labels, root index, confidence) from a segmentation .npz.
+    """(labels (N,) int32 cloud order, root index (cloud order) or None, confidence (L,) or
+    None) from a segmentation .npz, read exactly as ``convert --labels`` reads it
+    (``segment.labels_file.cloud_labels``), so edits replay on the same starting labels."""
+    from leaffit_usd.segment.labels_file import cloud_labels
 
-    labels : (N,) int32, cloud order, read exactly as ``convert --labels`` reads them
-        (``pipeline.load_labels``: negative = unassigned, leaves renumbered 1..L), so edits
-        replay on the same starting labels;
-    root index : cloud order or None, from the file's ``root_index`` (file order; array or
-        ``__json__``) when present;
-    confidence : (L,) float64 in [0, 1] for the renumbered leaves, or None. Taken from the
-        file's ``confidence`` array (leaf l+1 of the file at index l, as ``segment`` writes it)
-        when it has one value in [0, 1] per file leaf; otherwise ignored with a warning.
-    """
-    import json
-
-    from leaffit_usd.pipeline import load_labels
-
-    labels = load_labels(path, cloud)
-    root = raw = conf = None
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            raw = np.asarray(z["labels"])
-            if "root_index" in z.files:
-                root = int(z["root_index"])
-            elif "__json__" in z.files:
-                root = json.loads(str(z["__json__"])).get("root_index")
-            if "confidence" in z.files:
-                conf = np.asarray(z["confidence"])
-    except (OSError, ValueError, TypeError, KeyError):
-        root = None
-    root_cloud = None
-    if root is not None and 0 <= int(root) < cloud.file_count:
-        hit = np.flatnonzero(cloud.file_index == int(root))
-        root_cloud = int(hit[0]) if hit.size else None
-    return labels, root_cloud, _file_confidence(path, conf, raw, cloud)
-
-
-def _file_confidence(path, conf, raw, cloud) -> np.ndarray | None:
-    """A labels file's per-leaf confidence mapped onto the renumbered leaves, or None."""
-    if conf is None or raw is None:
-        return None
-    n_file = int(raw.max(initial=0))
-    if conf.ndim != 1 or conf.dtype.kind not in "fiu" or len(conf) != n_file:
-        log.warning("edit: %s: ignoring its 'confidence' (%s %s; expected %d values, one per leaf)",
-                    path, conf.dtype, conf.shape, n_file)
-        return None
-    conf = conf.astype(np.float64)
-    if not np.all((conf >= 0) & (conf <= 1)):
-        log.warning("edit: %s: ignoring its 'confidence' (values outside [0, 1])", path)
-        return None
-    present = raw[np.asarray(cloud.file_index)]
-    kept = np.unique(present[present > 0])  # file leaf of renumbered leaf 1..L (load_labels' order)
-    return conf[kept - 1]
+    return cloud_labels(path, cloud)
 
 
 def prepare_capture(inp, up="auto", root="auto", root_index=None, keep_scene=False, crop=None):

@@ -91,8 +91,8 @@ def params_from_args(args):
 # segment_time.py: 2.64 -> 2.51 s with the up axis estimated, same labels)
 @one_blas_thread
 def run(args) -> int:
-    from leaffit_usd.io_util import atomic_path
     from leaffit_usd.prepare import FrameOptions, PreparedPlant
+    from leaffit_usd.segment.labels_file import write_labels_file
     from leaffit_usd.segment.result import DOUBTFUL_CONFIDENCE
     from leaffit_usd.splats import load_cloud
 
@@ -129,9 +129,7 @@ def run(args) -> int:
     file_labels = prep.file_labels(labels)
     iso_classes = prep.file_classes()
     out = {
-        "labels": file_labels,
         "isolation": iso_classes,
-        "root_index": np.int64(fi[seg.root_index]),
         "apex_indices": fo(seg.apex_indices),
         "apex_labels": seg.apex_labels.astype(np.int32),
         "leaf_tip": fo(seg.leaf_tip),
@@ -143,11 +141,9 @@ def run(args) -> int:
         "input_to_working": frame.input_to_working,
         "params": np.array(json.dumps(seg.params)),
     }
-    if not getattr(args, "edits", None):  # after edits the automatic leaves' confidence is stale
-        out["confidence"] = np.asarray(seg.confidence, np.float64)
-    with atomic_path(args.output) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **out)
+    # after edits the automatic leaves' confidence is stale
+    conf = None if getattr(args, "edits", None) else np.asarray(seg.confidence, np.float64)
+    write_labels_file(args.output, file_labels, root_index=int(fi[seg.root_index]), confidence=conf, **out)
     log.info("%d leaves, %d apexes, %d of %d Gaussians on leaves -> %s", seg.n_leaves,
              len(seg.apex_indices), int((seg.labels > 0).sum()), len(seg.labels), args.output)
     doubtful = [i + 1 for i, c in enumerate(np.asarray(seg.confidence)) if c < DOUBTFUL_CONFIDENCE]

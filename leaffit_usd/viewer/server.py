@@ -53,7 +53,6 @@ from pathlib import Path
 import numpy as np
 
 from leaffit_usd.errors import UserError
-from leaffit_usd.io_util import atomic_path
 from leaffit_usd.segment.result import DOUBTFUL_CONFIDENCE
 
 log = logging.getLogger("leaffit_usd")
@@ -166,6 +165,7 @@ class ViewerSession:
 
     def save(self) -> dict:
         from leaffit_usd.segment.edits import Edits, save_edits, to_file_operations
+        from leaffit_usd.segment.labels_file import write_labels_file
 
         seg = self.segmenter
         t = self.edits_template
@@ -174,12 +174,8 @@ class ViewerSession:
                       base_labels_sha256=t.base_labels_sha256, base_leaves=t.base_leaves,
                       input_name=t.input_name, normals=t.normals)
         labels = self.cloud.to_file_order(seg.final_labels().astype(np.int32), fill=0)
-        extra = {}
-        if self.root_index is not None:
-            extra["root_index"] = np.int64(self.cloud.file_index[self.root_index])
-        with atomic_path(self.labels_out) as tmp:
-            with open(tmp, "wb") as fh:
-                np.savez_compressed(fh, labels=labels, **extra)
+        write_labels_file(self.labels_out, labels, root_index=None if self.root_index is None
+                          else int(self.cloud.file_index[self.root_index]))
         save_edits(edits, self.edits_out)
         self.saved_ops = list(seg.operations)
         log.info("saved %s (%d operations) and %s (%d leaves)", self.edits_out, len(edits.operations),
