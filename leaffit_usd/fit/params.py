@@ -18,6 +18,9 @@ PAPER_FIT = {"K": 32, "sigma": DEFAULT_SIGMA, "refine": 0, "reg": 0.01}
 #: (degrees): then its xy silhouette is its outline (the fit's outline term) and the template is
 #: built, charted and cut out along +Z (``mesh.view_frame``, ``mesh.texture_bake``)
 FACE_ON_MAX_DEG = 30.0
+#: the most control points a leaf can have: the GLSL deformer's per-vertex weight array
+#: (``LEAFFIT_MAX_K`` in runtime/glsl, which ``runtime.shader`` builds from this) holds this many
+MAX_K = 64
 
 
 @dataclass
@@ -99,6 +102,8 @@ class FitParams:
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < lo:
                 raise ParameterError(name, f"an integer >= {lo}", v)
+        if self.K > MAX_K:   # refused here: the GLSL deformer could not be built after the fit
+            raise ParameterError("K", f"at most {MAX_K} control points (the GLSL deformer's limit)", self.K)
         pos = ["lr", "max_scale_ratio", "sigma_relative"] + ([] if self.sigma == "auto" else ["sigma"])
         for name in pos:
             v = getattr(self, name)

@@ -36,7 +36,10 @@ class MeshParams:
     outline_grow : the clean outline grows out to the template splats' silhouette (alpha =
         ``alpha_threshold``), at most this many sample spacings (:mod:`.outline_fit`; the
         Gaussians' centres stop short of the leaf's edge); 0 = the outline stays on the centres
-    lod_vertices : vertex budgets of the coarser levels of detail (per side)
+    lod_vertices : vertex budgets of the coarser levels of detail (per side), each below the
+        last and below ``vertex_budget``; None (default) = a quarter and a sixteenth of
+        ``vertex_budget`` (512 and 128 at the default 2,048; a level under 8 vertices is left out),
+        see :meth:`lod_budgets`
     alpha_threshold : splat coverage at which the cut-out edge lies
     min_coverage : smallest fraction of the sheet's silhouette a side's splats must cover
     bake_gaussians : the bake renders at most this many of the template's Gaussians (an even
@@ -55,10 +58,22 @@ class MeshParams:
     supersample: int = 2
     clean_outline: bool = True
     outline_grow: float = 6.0
-    lod_vertices: tuple = (512, 128)
+    lod_vertices: tuple | None = None
     alpha_threshold: float = 0.5
     min_coverage: float = 0.6
     bake_gaussians: int = 65536
+
+    def lod_budgets(self) -> tuple:
+        """The coarser levels' vertex budgets (per side): ``lod_vertices``, or by default a
+        quarter and a sixteenth of the vertex budget (at least 8)."""
+        if self.lod_vertices is not None:
+            return tuple(self.lod_vertices)
+        out, last = [], int(self.vertex_budget)
+        for n in (last // 4, last // 16):   # a level too small to be coarser is left out
+            if 8 <= n < last:
+                out.append(n)
+                last = n
+        return tuple(out)
 
     def validate(self) -> None:
         if not isinstance(self.vertex_budget, (int, np.integer)) or self.vertex_budget < 3:
@@ -77,8 +92,12 @@ class MeshParams:
         if not isinstance(self.bake_gaussians, (int, np.integer)) or isinstance(self.bake_gaussians, bool) \
                 or self.bake_gaussians < 0:
             raise ParameterError("bake_gaussians", "an integer >= 0 (0 = all)", self.bake_gaussians)
-        if not all(isinstance(n, (int, np.integer)) and n >= 8 for n in tuple(self.lod_vertices)):
+        lods = self.lod_budgets()
+        if not all(isinstance(n, (int, np.integer)) and n >= 8 for n in lods):
             raise ParameterError("lod_vertices", "integers >= 8", self.lod_vertices)
+        if any(b >= a for a, b in zip((self.vertex_budget, *lods), lods)):
+            raise ParameterError("lod_vertices", f"budgets each below the last and below the vertex "
+                                 f"budget ({self.vertex_budget}): a coarser level of detail", lods)
         for name, lo, hi in (("alpha", 0.5, 100.0), ("texture_margin", 0.0, 0.45), ("outline_grow", 0.0, 10.0),
                              ("alpha_threshold", 0.01, 0.99), ("chart_min_width", 0.05, 1.0),
                              ("min_coverage", 0.0, 1.0)):

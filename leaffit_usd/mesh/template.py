@@ -151,7 +151,7 @@ def build_template_mesh(cloud_working, fits, params: MeshParams | None = None) -
     )
     t0 = time.perf_counter()
     mesh.lods = [two_sided(*lod_sheet(rim_sheet, P, Fs, int(n), grow), chart, rot)
-                 for n in params.lod_vertices]
+                 for n in params.lod_budgets()]
     timings["lods"] = time.perf_counter() - t0
     mesh.report = quality_report(mesh, cloud_working, fits, sheet, checks, tinfo, chart, params, rot)
     mesh.report["lod_vertices_per_side"] = [int(S)] + [int(len(l.points) // 2) for l in mesh.lods]

@@ -24,12 +24,12 @@ from pathlib import Path
 import numpy as np
 
 from leaffit_usd.errors import ParameterError
+from leaffit_usd.fit.params import MAX_K
 
 GLSL_DIR = Path(__file__).with_name("glsl")
 SNIPPET = GLSL_DIR / "leaffit_mls.glsl"
 VERTEX_SHADER = GLSL_DIR / "leaffit_deform.vert"
 VARIANTS = ("controls", "weights")
-MAX_K = 64
 
 _INCLUDE = re.compile(r'^\s*//\s*#leaffit_include\s+"([^"]+)"\s*$', re.M)
 
