@@ -37,3 +37,12 @@ def test_the_glsl_snippet_is_built_for_the_same_limit():
     from leaffit_usd.runtime.shader import vertex_shader_source
 
     assert f"#define LEAFFIT_MAX_K {MAX_K}" in vertex_shader_source()
+
+
+def test_one_seed_reaches_every_stage():
+    from leaffit_usd.cli import build_parser
+    from leaffit_usd.commands.convert import options_from_args
+
+    args = build_parser().parse_args(["convert", "x.ply", "-o", "x.usda", "--seed", "7"])
+    o = options_from_args(args)
+    assert o.fit.seed == o.segment.seed == o.isolate.seed == 7

@@ -69,7 +69,9 @@ def add_options(p) -> None:
     g.add_argument("--paper-fit", action="store_true",
                    help="the paper's registration exactly: K 32, sigma 0.1, no refinement")
     g.add_argument("--no-optimize", action="store_true", help="initial correspondence only (ablation)")
-    g.add_argument("--seed", type=pos_int, default=None, help=f"random seed ({fit('seed')})")
+    g.add_argument("--seed", type=pos_int, default=None,
+                   help="random seed of every stage: isolation's samples, the segmentation's subsets, "
+                        f"the fit ({fit('seed')})")
     g = p.add_argument_group("mesh")
     g.add_argument("--vertex-budget", type=pos_int, default=None,
                    help=f"template sheet vertices ({default(MeshParams, 'vertex_budget')})")
@@ -109,9 +111,12 @@ def options_from_args(args):
         fit["template"] = int(t) if t.isdigit() else t
     if args.no_optimize:
         fit["optimize"] = False
+    from leaffit_usd.isolate import IsolateParams
+
+    seeded = {} if args.seed is None else {"seed": args.seed}   # one --seed for every stage
     return ConvertOptions(
         **frame_options(args), labels=args.labels, edits=args.edits,
-        segment=segment_params(args),
+        segment=segment_params(args, **seeded), isolate=IsolateParams(**seeded),
         fit=replace(FitParams.paper() if args.paper_fit else FitParams(), **fit),
         mesh=MeshParams(**given(vertex_budget=args.vertex_budget,
                                 texture_size=args.bake_size if args.bake_size is not None else args.texture_size)),

@@ -78,7 +78,8 @@ def add_arguments(p) -> None:
     add_isolate_arguments(p)
     g = add_segment_arguments(p, "parameters (paper defaults, working units: plant height 1)")
     g.add_argument("--seed", type=pos_int,
-                   help=f"seed of the random geodesic subset ({default(SegmentParams, 'seed')})")
+                   help=f"seed of isolation's samples and the segmentation's random subsets "
+                        f"({default(SegmentParams, 'seed')})")
 
 
 def params_from_args(args):
@@ -107,7 +108,10 @@ def run(args) -> int:
     t1 = time.perf_counter()
     fo = _args.frame_options(args)
     front = {}
-    prep = PreparedPlant.from_cloud(cloud_in, FrameOptions(**fo), None, getattr(args, "keep_scene", False),
+    from leaffit_usd.isolate import IsolateParams
+
+    iso_params = IsolateParams(seed=params.seed)   # one --seed: isolation's samples too
+    prep = PreparedPlant.from_cloud(cloud_in, FrameOptions(**fo), iso_params, getattr(args, "keep_scene", False),
                                     getattr(args, "crop", None), timings=front)   # as convert does
     t_iso = front["isolate"]
     cloud, iso, frame = prep.plant, prep.iso, prep.frame
