@@ -16,11 +16,15 @@ edits.json`` to get exactly the same labels. Format (version 1)::
         {"op": "assign", "label": 3},
         {"op": "merge", "labels": [2, 5]}, {"op": "delete", "label": 4},
         {"op": "select_leaf", "label": 1, "mode": "replace"}, {"op": "split", "label": 1},
+        {"op": "split_at", "seeds": [5120, 733]},
         {"op": "clear"}
       ]
     }
 
-* Gaussian indices (``source``, ``target``, ``centers``) are positions in the input FILE (the
+* ``split_at`` is the editor's click-to-split: the leaf under both seeds is partitioned by which
+  seed is geodesically nearer (the same sampled heat geodesics as drag and brush), the part
+  nearer the second seed becoming a new leaf.
+* Gaussian indices (``source``, ``target``, ``centers``, ``seeds``) are positions in the input FILE (the
   identity of a Gaussian everywhere), not in a cloud with invalid Gaussians dropped.
 * ``radius`` is a geodesic radius in working units (plant height = 1); ``geodesics.height`` is
   the plant height in input units the session used, so replay does not depend on how the up
@@ -56,7 +60,7 @@ log = logging.getLogger("leaffit_usd")
 FORMAT = "leaffit-usd-edits"
 VERSION = 1
 NORMALS = "smallest-axis"  # default: orientation-aware geodesics, like the automatic segmentation
-_INDEX_FIELDS = {"drag": ("source", "target"), "brush": ("centers",)}
+_INDEX_FIELDS = {"drag": ("source", "target"), "brush": ("centers",), "split_at": ("seeds",)}
 
 
 @dataclass

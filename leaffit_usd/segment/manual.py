@@ -50,6 +50,8 @@ OPERATIONS = {
     "merge": "labels: [int, ...] — every listed leaf gets the first label",
     "delete": "label: int >= 1 — the leaf's Gaussians go back to the stem",
     "split": "label: int >= 1 — the selected Gaussians of that leaf become a new leaf",
+    "split_at": "seeds: [int, int] — two clicks on one leaf that is two merged leaves: its Gaussians "
+                "geodesically nearer the second seed become a new leaf (ties stay)",
 }
 SELECT_MODES = ("replace", "add", "erase")
 
@@ -269,6 +271,12 @@ class ManualSegmenter:
             if not isinstance(labels, list) or len(labels) < 2:
                 raise UserError(f"operation {op_no}: labels must list at least two leaves to merge")
             return {"op": kind, "labels": [self._check_label(op_no, "labels[]", v, allow_stem=False) for v in labels]}
+        if kind == "split_at":
+            seeds = op.get("seeds")
+            if not isinstance(seeds, list) or len(seeds) != 2:
+                raise UserError(f"operation {op_no}: seeds must list two Gaussian indices, one per leaf")
+            a, b = (self._check_index(op_no, "seeds[]", g) for g in seeds)
+            return {"op": kind, "seeds": [a, b]}
         # delete, split
         return {"op": kind, "label": self._check_label(op_no, "label", op.get("label"), allow_stem=False)}
 
@@ -307,12 +315,31 @@ class ManualSegmenter:
         if kind == "delete":
             labels[labels == op["label"]] = 0
             return EditState(labels, sel)
+        if kind == "split_at":
+            part = self.split_part(state.labels, *op["seeds"])
+            labels[part] = int(labels.max(initial=0)) + 1
+            return EditState(labels, np.zeros(self.n, bool))
         if kind == "split":
             part = sel & (labels == op["label"])
             if part.any():
                 labels[part] = int(labels.max(initial=0)) + 1
             return EditState(labels, np.zeros(self.n, bool))
         raise AssertionError(kind)  # validate() rejects unknown kinds
+
+    def split_part(self, labels: np.ndarray, a: int, b: int) -> np.ndarray:
+        """(N,) bool: the Gaussians of seed ``a``'s leaf that are geodesically nearer to seed ``b``
+        than to ``a`` (``D_b[g] < D_a[g]``; ties stay with ``a``). The leaf is
+        ``labels[a]``, which must be a leaf (>= 1) and ``labels[b]``'s too (UserError)."""
+        la, lb = int(labels[a]), int(labels[b])
+        if la == 0 or lb == 0:
+            raise UserError("split_at: both clicks must be on a leaf (one is on the stem / unassigned)")
+        if la != lb:
+            raise UserError(f"split_at: the two clicks are on different leaves ({la} and {lb}); "
+                            "click twice on the one leaf to split")
+        if a == b or self.geodesics.source_sample(a) == self.geodesics.source_sample(b):
+            raise UserError("split_at: the two clicks are on the same spot; click once on each leaf")
+        leaf = labels == la
+        return leaf & (self.geodesics.distance(b) < self.geodesics.distance(a))
 
     # ---- public editing API ----------------------------------------------------------------
     def preview(self, op: dict) -> np.ndarray:

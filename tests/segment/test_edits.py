@@ -179,3 +179,46 @@ def test_cloud_without_drops(plant, heat, tmp_path):
     """A plain GaussianCloud (file_index = arange) works the same way."""
     cloud: GaussianCloud = plant[0]
     assert np.array_equal(cloud.file_index, np.arange(len(cloud)))
+
+
+def test_split_at_separates_merged_leaves_and_replays(plant, plant_file, heat, tmp_path):
+    """Two leaves merged into one instance, split by one click on each: the geodesic partition
+    gives the two leaves back, is saved as ``split_at`` with file indices, and replays exactly."""
+    cloud = load_cloud(plant_file)
+    truth = plant[1][cloud.file_index]
+    merged = np.where(truth > 0, 1, 0).astype(np.int32)
+    s = build_session(cloud, merged, plant_file, tmp_path / "e.json", tmp_path / "l.npz",
+                      n_samples=1500, solver_factory=heat)
+    def mid(k):  # a Gaussian in the middle of true leaf k
+        x = np.abs(cloud.means[:, 0]) + 10 * (truth != k)
+        return int(np.argmin(np.abs(x - 0.25)))
+
+    a, b = mid(1), mid(2)
+    s.segmenter.apply({"op": "split_at", "seeds": [a, b]})
+    got = s.segmenter.final_labels()
+    assert set(np.unique(got)) == {0, 1, 2}
+    assert (got[truth == 1] == 1).mean() > 0.98 and (got[truth == 2] == 2).mean() > 0.98
+    assert (got[truth == 0] == 0).all()  # the stem is not touched
+    s.save()
+    data = json.loads((tmp_path / "e.json").read_text())
+    assert data["operations"] == [{"op": "split_at", "seeds": [int(cloud.file_index[a]),
+                                                                int(cloud.file_index[b])]}]
+    cloud2 = load_cloud(plant_file)
+    replayed = apply_edits(merged.copy(), cloud2, load_edits(tmp_path / "e.json", plant_file),
+                           solver_factory=heat)
+    assert np.array_equal(cloud2.to_file_order(replayed), np.load(tmp_path / "l.npz")["labels"])
+    # refused with one line: clicks on two leaves, on the stem, twice on one spot, one seed only
+    seg = s.segmenter
+    stem = int(np.flatnonzero(truth == 0)[0])
+    for op, words in [({"op": "split_at", "seeds": [a, stem]}, "stem"),
+                      ({"op": "split_at", "seeds": [a, int(np.flatnonzero(got == 2)[0])]}, "different leaves"),
+                      ({"op": "split_at", "seeds": [a, a]}, "same spot"),
+                      ({"op": "split_at", "seeds": [a]}, "two Gaussian indices")]:
+        with pytest.raises(UserError, match=words):
+            seg.apply(op)
+        assert "\n" not in str(pytest.raises(UserError, seg.apply, op).value)
+    # the file's seeds are index fields: out of range is refused at load
+    bad = dict(data, operations=[{"op": "split_at", "seeds": [0, cloud.file_count]}])
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    with pytest.raises(InputFileError, match="not a Gaussian index"):
+        load_edits(tmp_path / "bad.json", plant_file)
