@@ -163,6 +163,14 @@ class SegmentParams:
         (0.65)
     palm_fraction : two branches of one blade that merge with less than this fraction of their
         size below the saddle are two leaves met at their bases (0.15)
+    stalk_narrow : two branches are also two leaves when what lies below their saddle is
+        narrower than this fraction of the narrower branch (points per unit of distance from
+        the attachment: width x sampling density; 0.75, >= 0; 0 = the palm test alone). Why: on
+        a real scan a stalk can be a flat strip that the tube test misses (the MVS tomato
+        seedling's hypocotyl of ../shared/real, seen from one side): its two cotyledons met
+        above a strip too long for ``palm_fraction`` (0.19 below) and were one leaf; that strip
+        is 0.58 and 0.39 of them on the two dates, the lobes of one blade 1.85 or more (every
+        saddle between branches of leaf size on paper8, hard4 and heliosdev8 seed 1)
     min_leaf_fraction : smallest leaf, as a fraction of the domain points (0.002)
     attach_link : attachment points within this many median spacings are one stalk's entry (3.0)
     piece_thick : a piece whose normals wrap around (``tube_ratio``) is a tube only when its
@@ -173,9 +181,23 @@ class SegmentParams:
         scans of ../shared/real and on the generated leaves, stems 0.4-0.8). Why: a leaf curled
         along its length, a cupped or folded blade, turns its normals as a tube does, and on
         real scans whole leaves went to the stem that way (benchmarks/real_scans.py)
+    blade_thick : a piece found as a leaf (a sheet piece apart from the stem) is a tube by its
+        thickness only above this, more than ``piece_thick`` (0.3, in [0, 1]: a half ring of
+        tube gives 0.29, a full one 0.67-1). Why: a leaf folded at its midrib or rolled into a U
+        is as thick as a stem seen from one side; three whole maize leaves of ../shared/real
+        (median 0.20-0.26, their normals wrapping round) went to the stem at 0.2; the stem
+        pieces this test found on the generated sets (hard4 apple_uneven, seeds 1-3) are
+        0.78-0.90
     tube_elongation : length along the wrap axis over the extent across it above which such a
         piece is a tube (2.0, >= 1: a stem segment is longer than it is thick; a curled leaf is
         only its width long on that axis)
+    tube_radial : and only when it is closed round that axis: the median over its points of
+        ``|n . r|``, ``r`` the direction to the point from its cross-section's centroid
+        (``blades.radial_share``), above this (0.8, in [0, 1]: a ring 1.0, a half ring 0.81, a
+        quarter 0.47, a twisted strap ~0). Why: a maize whorl's youngest leaf, rolled and
+        twisted along its length, turns its normals about its long axis and passed the
+        elongation test alone (two whole leaves of the maize scans of ../shared/real went to
+        the stem that way; radial 0.49 and 0.34)
     stem_gap : a tube piece of leaf size and thick across (``piece_thick``) within this many
         ``stalk_radius`` of the stem along the surface graph continues the stem (4.0, >= 0;
         0 = only the root's piece): where a scanner sees a stem from one side or its points
@@ -222,10 +244,13 @@ class SegmentParams:
     normal_cos: float = 0.87
     tube_ratio: float = 0.65
     palm_fraction: float = 0.15
+    stalk_narrow: float = 0.75
     min_leaf_fraction: float = 0.002
     attach_link: float = 3.0
     piece_thick: float = 0.2
+    blade_thick: float = 0.3
     tube_elongation: float = 2.0
+    tube_radial: float = 0.8
     stem_gap: float = 4.0
     max_gaussians: int = 120_000
 
@@ -268,12 +293,12 @@ class SegmentParams:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ParameterError(name, "a positive number", v)
-        for name, lo in {"tube_elongation": 1.0, "stem_gap": 0.0}.items():
+        for name, lo in {"tube_elongation": 1.0, "stem_gap": 0.0, "stalk_narrow": 0.0}.items():
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= lo):
                 raise ParameterError(name, f"a number >= {lo}", v)
         for name in ("stalk_ratio", "tangent_sin", "normal_cos", "tube_ratio", "palm_fraction",
-                     "min_leaf_fraction", "piece_thick"):
+                     "min_leaf_fraction", "piece_thick", "blade_thick", "tube_radial"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0 <= v <= 1):
                 raise ParameterError(name, "a number in [0, 1]", v)

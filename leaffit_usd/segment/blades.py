@@ -39,7 +39,10 @@ Steps (working frame: root at the origin, +Z up, plant height 1; radii in those 
    superlevel sets of the distance from the attachment separates them: tips are born, branches
    merge at saddles. Two branches of at least ``min_leaf_fraction`` of the domain that merge
    where less than ``palm_fraction`` of their size lies below the saddle meet at their bases:
-   they are two leaves. Lobes of one blade meet above a palm and stay one leaf.
+   they are two leaves; so are two that merge above a strip narrower than either
+   (``stalk_narrow``: a stalk the tube test missed, as a scan that sees a stem from one side
+   makes it a flat band). Lobes of one blade meet above a palm as wide as they are and stay one
+   leaf.
 5. **Tubes that look like sheets**: a thick main stem is flat at ``stalk_radius``; a would-be
    leaf whose normals wrap around (``T``'s eigenvalue ratio over the whole piece above
    ``tube_ratio``) is a stem piece, not a leaf, when its *positions* say tube too; so is a blade
@@ -51,9 +54,12 @@ Steps (working frame: root at the origin, +Z up, plant height 1; radii in those 
    the neighbourhood's covariance (:func:`shape_eigenvalues`, opacity-weightable) is thick
    across a tube (``lambda_3 / lambda_2`` 0.4-0.8 at 2-4 ``stalk_radius``) and thin on a sheet,
    curled or not, two-layered or noisy (0.02-0.12), and a tube is longer along the axis its
-   normals wrap around than across it (:func:`tube_shaped`), a curled leaf is not. These do not
-   use the Gaussians' rotations, the least reliable part of a real capture. Sheet bits too small to be leaves (a blade
-   cut by the sheet test where it folds) join the nearest leaf through non-stem points.
+   normals wrap around than across it and closed round that axis (:func:`tube_shaped`), a
+   curled, rolled or twisted leaf is not. A piece found as a leaf must be thicker than a half
+   ring (``blade_thick``): a leaf folded at its midrib into a U is as thick as a stem seen from
+   one side (0.2-0.3 on the maize scans). These do not use the Gaussians' rotations, the least
+   reliable part of a real capture. Sheet bits too small to be leaves (a blade cut by the sheet
+   test where it folds) join the nearest leaf through non-stem points.
 6. Leaves are ordered bottom to top by the ``D_r`` of their base; every Gaussian takes the label
    of its nearest domain point; floaters stay unassigned. The rootward tree (for the stem mesh)
    is the graph's shortest-path tree from the root to every leaf tip.
@@ -415,6 +421,9 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size, surfa
     junction: dict = {}
     seen = [False] * k
     leaves, rest = [], []
+    dist_l = dist.tolist()
+    top: dict = {}   # the highest level (distance) of each branch: where its tip was born
+    low = float(dist.min()) if k else 0.0
 
     def find(x):
         while parent[x] != x:
@@ -433,7 +442,7 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size, surfa
 
     for v in order.tolist():
         seen[v] = True
-        free[v], junction[v] = [v], False
+        free[v], junction[v], top[v] = [v], False, dist_l[v]
         for r in sorted({find(u) for u in indices[indptr[v]:indptr[v + 1]] if seen[u]} - {v}):
             a = find(v)
             if a == r:
@@ -443,8 +452,10 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size, surfa
                 if ta != tr:  # a sheet meets a tube: the sheet is a leaf
                     freeze(r if ta else a)
                 elif (min(len(free[a]), len(free[r])) >= PALM_BALANCE * max(len(free[a]), len(free[r]))
-                      and rank_below[v] < params.palm_fraction * (
-                          len(free[a]) + len(free[r]))):  # met at their bases: two leaves
+                      and (rank_below[v] < params.palm_fraction * (len(free[a]) + len(free[r]))
+                           or _narrow_below(rank_below[v], dist_l[v] - low,
+                                            [(len(free[x]), top[x] - dist_l[v]) for x in (a, r)],
+                                            params))):  # met at their bases: two leaves
                     for x in (a, r):  # a junction met again is leftover, not a leaf
                         if junction[x]:
                             rest.extend(free[x])
@@ -459,10 +470,24 @@ def split_at_narrow_saddles(nodes, dist, graph, normals, params, min_size, surfa
                 len(free[a]) >= min_size and not junction[a])
             parent[r] = a
             free[a].extend(free[r])
-            del free[r], junction[r]
+            top[a] = max(top[a], top[r])
+            del free[r], junction[r], top[r]
     for x, f in free.items():
         (leaves.append(np.asarray(f)) if len(f) >= min_size and not junction[x] else rest.extend(f))
     return [nodes[x] for x in leaves], nodes[np.asarray(rest, np.int64)]
+
+
+def _narrow_below(below: int, depth: float, branches: list, params) -> bool:
+    """Whether what lies below a saddle of the merge tree (``below`` points over ``depth`` of
+    distance down to the attachment) is a stalk, narrower than each of the ``branches`` meeting
+    there ((points, height above the saddle) each): its points per unit of distance, a width
+    (times the sampling density), under ``params.stalk_narrow`` x the narrower branch's. Two
+    leaves met at the top of a stalk that the tube test missed (a scan sees it as a flat strip)
+    have a narrow strip below their saddle, however long; the lobes of one blade meet above
+    a palm as wide as they are."""
+    if depth <= 0 or any(h <= 0 for _, h in branches):
+        return False
+    return below / depth < params.stalk_narrow * min(n / h for n, h in branches)
 
 
 @dataclass
@@ -549,9 +574,12 @@ def piece_thickness(g: SurfaceGraph, weights: np.ndarray | None, params) -> np.n
 def tube_shaped(points: np.ndarray, normals: np.ndarray, params) -> bool:
     """Whether a piece whose normals wrap around ((k, 3) points and unit normals) is long along
     the axis they wrap around (the normal tensor's least eigenvector) against its extent across
-    it: a tube is (a stem piece is longer than it is thick), a curled sheet is not (a leaf
-    curled along its length is only its width long on that axis, and its arch is wide). Extents
-    are 5-95 % ranges, so stray points do not count."""
+    it, and closed round that axis (:func:`radial_share` above ``tube_radial``: at least about a
+    half ring): a tube is (a stem piece is longer than it is thick, and round), a curled sheet
+    is not (a leaf curled along its length is only its width long on that axis, and its arch is
+    wide), nor is a leaf rolled or twisted along its length (a maize whorl's youngest leaf: long
+    on the axis its normals turn about, but an open arc or a strap across it). Extents are
+    5-95 % ranges, so stray points do not count."""
     if len(points) < 3:
         return False
     axis = np.linalg.eigh(normals.T @ normals)[1][:, 0]
@@ -561,22 +589,47 @@ def tube_shaped(points: np.ndarray, normals: np.ndarray, params) -> bool:
     main = np.linalg.eigh(c.T @ c)[1][:, -1]
     length = np.subtract(*np.percentile(along, [95, 5]))
     width = np.subtract(*np.percentile(c @ main, [95, 5]))
-    return bool(length > params.tube_elongation * max(width, 1e-12))
+    if length <= params.tube_elongation * max(width, 1e-12):
+        return False
+    return radial_share(points, normals, axis) > params.tube_radial
+
+
+def radial_share(points: np.ndarray, normals: np.ndarray, axis: np.ndarray,
+                 slices: int = 8) -> float:
+    """How closed a piece's cross-sections are round ``axis`` ((3,) unit): the median over its
+    points ((k, 3) positions, unit normals) of ``|n . r|``, ``r`` the unit direction across the
+    axis from the centroid of the point's slice (one of ``slices`` equal-count slices along the
+    axis, so a bent piece keeps its centre) to the point. A ring's centroid is its centre: 1.0;
+    an arc's lies inside the arc, off its centre of curvature: 0.81 for a half ring, 0.72 for
+    150 degrees, 0.47 for a quarter; a twisted strap passes through its centroid: ~0."""
+    along = points @ axis
+    across = points - along[:, None] * axis
+    edges = np.quantile(along, np.linspace(0.0, 1.0, slices + 1)[1:-1])
+    part = np.searchsorted(edges, along)
+    sums = np.zeros((slices, 3))
+    np.add.at(sums, part, across)
+    centre = sums / np.maximum(np.bincount(part, minlength=slices), 1)[:, None]
+    r = across - centre[part]
+    r /= np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-12)
+    return float(np.median(np.abs((normals * r).sum(1))))
 
 
 def _piece_is_tube(g: SurfaceGraph, nodes: np.ndarray, thick: np.ndarray | None, params) -> bool:
-    """Step 5 for one piece (graph indices): its normals wrap around (normal tensor ratio above
-    ``tube_ratio``) and its positions say tube, not curled sheet: thick across
-    (:func:`piece_thickness`, median above ``piece_thick``) or :func:`tube_shaped`."""
+    """Step 5 for one piece (graph indices) found as a leaf: its normals wrap around (normal
+    tensor ratio above ``tube_ratio``) and its positions say tube, not curled sheet: thicker
+    across than a half ring (:func:`piece_thickness`, median above ``blade_thick``) or
+    :func:`tube_shaped`."""
     if normal_tensor_ratio(g.normals[nodes]) <= params.tube_ratio:
         return False
-    return thick is None or _is_thick(thick[nodes], params) or tube_shaped(g.points[nodes], g.normals[nodes], params)
+    return (thick is None or _is_thick(thick[nodes], params, params.blade_thick)
+            or tube_shaped(g.points[nodes], g.normals[nodes], params))
 
 
-def _is_thick(values: np.ndarray, params) -> bool:
+def _is_thick(values: np.ndarray, params, level: float | None = None) -> bool:
     """A piece is thick across (a tube, not a curled or folded sheet) when the median of its
-    :func:`piece_thickness` ``values`` exceeds ``params.piece_thick``."""
-    return bool(len(values)) and float(np.median(values)) > params.piece_thick
+    :func:`piece_thickness` ``values`` exceeds ``level`` (None: ``params.piece_thick``)."""
+    level = params.piece_thick if level is None else level
+    return bool(len(values)) and float(np.median(values)) > level
 
 
 def _claim_loose_sheet(g: SurfaceGraph, labels: np.ndarray, stem: np.ndarray) -> None:

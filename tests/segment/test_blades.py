@@ -313,3 +313,106 @@ def test_a_stem_whose_tube_test_drops_out_is_one_stem():
     new = rooted_stem(g, tube, z, link, 20, thick=th, gap=p.stem_gap * p.stalk_radius, params=p)
     assert not old[z > 0.42].any()
     assert new[z > 0.42].all() and new[z < 0.4].all()
+
+
+def _twisted_strap(rng, n, z0=0.5, length=0.45, width=0.05, turns=0.5):
+    """A grass leaf rising from the top of a stem at height ``z0``, twisted ``turns`` half-turns
+    along its length (a maize whorl's youngest leaf): its normals turn about its long axis."""
+    t = rng.random(n)
+    w = (rng.random(n) - 0.5) * width
+    th = np.pi * turns * t
+    pts = np.stack([w * np.cos(th), w * np.sin(th), z0 + length * t], 1)
+    nrm = np.stack([-np.sin(th), np.cos(th), np.zeros(n)], 1)
+    return pts, nrm
+
+
+def test_a_twisted_strap_leaf_is_not_a_tube():
+    """A strap leaf twisted along its length turns its normals about its long axis, as a tube
+    does about its own, and is long on that axis; but it is no tube: it passes through that
+    axis, so its cross-sections do not close round it (radial_share ~0, a tube's 1)."""
+    from leaffit_usd.segment.blades import radial_share, tube_shaped
+
+    rng = np.random.default_rng(14)
+    p = SegmentParams()
+    strap, sn = _twisted_strap(rng, 6000, turns=1.0)
+    assert normal_tensor_ratio(sn) > p.tube_ratio  # its normals wrap around
+    tube, tn = _cylinder([0, 0, 0], [0, 0, 0.4], 0.01, 6000, rng)
+    axis = np.array([0, 0, 1.0])
+    assert radial_share(strap, sn, axis) < 0.3 < 0.95 < radial_share(tube, tn, axis)
+    assert tube_shaped(tube, tn, p)
+    assert not tube_shaped(strap, sn, p)
+    assert tube_shaped(strap, sn, SegmentParams(tube_radial=0.0))  # the elongation test alone
+
+
+def test_a_twisted_strap_on_top_of_a_stem_is_a_leaf():
+    """End to end: the twisted strap leaf on top of a stem is a leaf, and the stem stays stem."""
+    rng = np.random.default_rng(15)
+    stem, sn = _cylinder([0, 0, 0], [0, 0, 0.5], 0.008, 5000, rng)
+    leaf, ln = _twisted_strap(rng, 9000, z0=0.5, turns=1.0)
+    leaf[:, 0] += 0.006  # its base against the stem's side
+    pts, nrm, lab, root = _assemble([(stem, sn, 0), (leaf, ln, 1)], rng)
+    seg = segment_plant(pts, root, normals=nrm)
+    assert (seg.labels[lab == 1] > 0).mean() > 0.9
+    assert (seg.labels[lab == 0] == 0).mean() > 0.9
+
+
+def _flat_y(rng, n, z0=0.4, strip=0.3, strip_width=0.03, blade=0.25, blade_width=0.1):
+    """A flat "Y" in the x-z plane (normal +y): a strip from ``z0`` up ``strip`` long (a stalk a
+    scan sees as a flat band), and at its top two elliptic blades spreading up-left and
+    up-right. Returns points, normals and labels (0 strip, 1 and 2 the blades)."""
+    k = int(n * strip * strip_width / (strip * strip_width + 2 * np.pi / 4 * blade * blade_width))
+    s = np.stack([(rng.random(k) - 0.5) * strip_width, np.zeros(k), z0 + strip * rng.random(k)], 1)
+    parts, labels = [s], [np.zeros(k, np.int32)]
+    top = np.array([0, 0, z0 + strip])
+    for lab, sx in ((1, -1.0), (2, 1.0)):
+        d = np.array([sx, 0, 1.0]) / np.sqrt(2)
+        side = np.array([-d[2], 0, d[0]])
+        m = (n - k) // 2
+        x, y = rng.random(4 * m), (rng.random(4 * m) - 0.5) * 2
+        keep = np.abs(y) <= np.sqrt(np.clip(1 - (2 * x - 1) ** 2, 0, None))
+        x, y = x[keep][:m], y[keep][:m]
+        parts.append(top + (x * blade)[:, None] * d + (y * blade_width / 2)[:, None] * side)
+        labels.append(np.full(len(x), lab, np.int32))
+    pts = np.concatenate(parts)
+    return pts, np.tile([0, 1.0, 0], (len(pts), 1)), np.concatenate(labels)
+
+
+def test_two_blades_on_a_flat_strip_are_two_leaves():
+    """Two blades meet at the top of a stalk that the tube test misses (a flat strip, as an MVS
+    scan saw a tomato seedling's hypocotyl): the strip below their saddle is too long for the
+    palm test, but narrower than either blade, so they are two leaves, not one."""
+    rng = np.random.default_rng(16)
+    stem, sn = _cylinder([0, 0, 0], [0, 0, 0.4], 0.008, 4000, rng)
+    y, yn, ylab = _flat_y(rng, 12000)
+    pts = np.concatenate([stem, y]) + rng.normal(0, 0.0005, (len(stem) + len(y), 3))
+    nrm = np.concatenate([sn, yn])
+    lab = np.concatenate([np.zeros(len(stem), np.int32), ylab])
+    root = int(np.argmin(pts[:, 2]))
+    one = segment_plant(pts, root, SegmentParams(stalk_narrow=0.0), normals=nrm)
+    assert one.n_leaves == 1  # the palm test alone: one leaf
+    seg = segment_plant(pts, root, normals=nrm)
+    assert seg.n_leaves == 2
+    for b in (1, 2):
+        assert np.bincount(seg.labels[lab == b]).max() > 0.9 * (lab == b).sum()
+
+
+def test_a_leaf_folded_into_a_u_is_not_a_tube():
+    """A sparse piece of leaf folded at its midrib into a U (an arc of 190 degrees across, its
+    normals wrapping round) is as thick across as a stem seen from one side: thick enough for
+    ``piece_thick``, not for ``blade_thick`` (a half ring's 0.29): found as a leaf, it stays
+    one."""
+    from leaffit_usd.segment.blades import _piece_is_tube, piece_thickness
+
+    rng = np.random.default_rng(17)
+    n = 800
+    ph = np.radians(rng.uniform(-95, 95, n))
+    y = rng.random(n) * 0.06
+    pts = np.stack([0.02 * np.sin(ph), y, 0.02 * np.cos(ph)], 1) + rng.normal(0, 0.0005, (n, 3))
+    nrm = np.stack([np.sin(ph), np.zeros(n), np.cos(ph)], 1)
+    p = SegmentParams()
+    g = build_surface_graph(pts, nrm, np.ones(n, bool), p)
+    th = piece_thickness(g, None, p)
+    nodes = np.arange(g.size)
+    assert p.piece_thick < np.median(th) < p.blade_thick
+    assert not _piece_is_tube(g, nodes, th, p)
+    assert _piece_is_tube(g, nodes, th, SegmentParams(blade_thick=p.piece_thick))
