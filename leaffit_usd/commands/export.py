@@ -7,7 +7,7 @@ from pathlib import Path
 
 NAME = "export"
 ORDER = 65
-HELP = "write a LeafFit stage as glTF 2.0 (.glb / .gltf) for game engines and the web"
+HELP = "write a LeafFit stage as glTF 2.0 (.glb / .gltf) for game engines, or as a web page (.html)"
 DESCRIPTION = """\
 Write a LeafFit stage as glTF 2.0: .glb (binary, textures embedded) or .gltf (one JSON file,
 buffer and textures embedded as data URIs). Metres, +Y up (the stage's upAxis and metersPerUnit
@@ -21,9 +21,17 @@ The per-leaf tint (primvars:leaffit:tint) becomes the vertex colour COLOR_0.
                 Smaller and faster to draw, but glTF has no MLS deformer: every leaf is the
                 template's shape, rigidly placed (the per-leaf deformation is lost)
 
+  plant.html    one self-contained web page (three.js, the evaluated GLB, orbit controls and
+                a wind slider: every leaf turns about its axis through its pivot); opens from
+                a file, offline
+
+The glTF carries the wind data too: _WIND per vertex (leaf flutter, branch bend, phase) and,
+instanced, _WINDPIVOT / _WINDAXIS per leaf (docs/usd_layout.md says which engine reads what).
+
 Examples:
   leaffit-usd export plant.usda -o plant.glb
   leaffit-usd export plant.usdz -o plant_instanced.glb --instanced --texture-format png
+  leaffit-usd export plant.usda -o plant.html
 """
 
 log = logging.getLogger("leaffit_usd")
@@ -61,8 +69,9 @@ def export(stage_path, output, instanced: bool = False, texture_format: str = "j
     from leaffit_usd.usd.writer import LeafTextures
 
     stage_path, output = Path(stage_path), Path(output)
-    if output.suffix.lower() not in GLTF_FORMATS:
-        raise ParameterError("--output", f"a file ending in {' or '.join(GLTF_FORMATS)}", str(output))
+    page = output.suffix.lower() == ".html"
+    if output.suffix.lower() not in GLTF_FORMATS and not page:
+        raise ParameterError("--output", f"a file ending in {', '.join(GLTF_FORMATS)} or .html", str(output))
     t0 = time.perf_counter()
     stage = open_stage(stage_path)
     asset = read_stage_object(stage, stage_path)
@@ -73,6 +82,17 @@ def export(stage_path, output, instanced: bool = False, texture_format: str = "j
         log.warning("export: the stage's leaf textures could not be read; leaves get a flat colour")
     opts = GltfOptions(instanced=instanced, texture_format=texture_format,
                        texture_max_size=int(texture_size), tint=tint)
+    if page:   # one self-contained web page: three.js, the asset, a wind slider
+        from leaffit_usd.export.page import write_page
+
+        try:
+            n = write_page(output, asset, textures, opts)
+        except OSError as e:
+            raise InputFileError(output, f"cannot write: {e.strerror or e}") from None
+        log.info("wrote %s (web page, %d leaves, %.1f KB) in %.2f s", output, asset.n_leaves,
+                 n / 1024, time.perf_counter() - t0)
+        return {"output": str(output), "layout": "page", "leaves": asset.n_leaves, "bytes": n,
+                "seconds": time.perf_counter() - t0}
     try:
         res = write_gltf(output, asset, textures, opts)
     except OSError as e:

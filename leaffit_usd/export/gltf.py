@@ -46,6 +46,7 @@ from leaffit_usd.io_util import atomic_write_bytes
 from leaffit_usd.geometry.normals import vertex_normals
 from leaffit_usd.geometry.quaternion import matrix_to_quat, quat_to_matrix
 from leaffit_usd.runtime.evaluator import BakedLeaves, evaluate
+from leaffit_usd.usd.wind import wind_data
 from leaffit_usd.version import __version__
 from leaffit_usd.usd.asset import PlantAsset
 
@@ -312,6 +313,8 @@ def build_gltf(asset: PlantAsset, textures=None, options: GltfOptions | None = N
               "inputSha256": str((asset.metadata or {}).get("input_sha256", "")),
               "textureGain": [float(x) for x in gain],
               "toolVersion": str((asset.metadata or {}).get("tool_version", __version__))}
+    wind = wind_data(asset)
+    extras["wind"] = WIND_EXTRAS
     if L and not options.instanced:
         baked = evaluated_leaves(asset)
         verts = np.asarray(baked.vertices, np.float32)
@@ -321,6 +324,8 @@ def build_gltf(asset: PlantAsset, textures=None, options: GltfOptions | None = N
                  "TEXCOORD_0": b.accessor(np.tile(_gltf_uvs(asset.template_uvs), (L, 1)), "VEC2")}
         if tints is not None:
             attrs["COLOR_0"] = b.accessor(np.repeat(tints, V, axis=0), "VEC3")
+        attrs["_WIND"] = b.accessor(np.column_stack([
+            np.tile(wind.flutter, L), np.repeat(wind.leaf_bend, V), np.repeat(wind.phases, V)]).astype(np.float32), "VEC3")
         prims = []
         for s in (0, 1):
             sel = faces[:, back == bool(s)].reshape(-1, 3)
@@ -353,6 +358,13 @@ def build_gltf(asset: PlantAsset, textures=None, options: GltfOptions | None = N
                                     "VEC3", None)}
         if tints is not None:
             inst["_COLOR_0"] = b.accessor(tints, "VEC3", None)
+        pivots = np.asarray(wind.pivots, np.float64) @ G[:3, :3].T + G[:3, 3]
+        inst["_WINDPIVOT"] = b.accessor(pivots.astype(np.float32), "VEC3", None)
+        inst["_WINDAXIS"] = b.accessor((np.asarray(wind.axes, np.float64) @ rG.T).astype(np.float32), "VEC3", None)
+        inst["_WIND"] = b.accessor(np.column_stack([np.zeros(L), wind.leaf_bend, wind.phases]).astype(np.float32),
+                                   "VEC3", None)
+        attrs["_WIND"] = b.accessor(np.column_stack([wind.flutter, np.zeros((len(pts), 2))]).astype(np.float32),
+                                    "VEC3")
         children.append(b.node(name="Leaves", mesh=b.mesh("TemplateLeaf", prims),
                                extensions={INSTANCING_EXT: {"attributes": inst}}))
         b.gltf.extensionsUsed.append(INSTANCING_EXT)
@@ -362,7 +374,9 @@ def build_gltf(asset: PlantAsset, textures=None, options: GltfOptions | None = N
         sv = np.asarray(asset.stem_points, np.float64) @ G[:3, :3].T + G[:3, 3]
         sf = np.asarray(asset.stem_faces, np.int64)
         attrs = {"POSITION": b.accessor(sv.astype(np.float32), "VEC3", minmax=True),
-                 "NORMAL": b.accessor(_unit_normals(sv, sf), "VEC3")}
+                 "NORMAL": b.accessor(_unit_normals(sv, sf), "VEC3"),
+                 "_WIND": b.accessor(np.column_stack([np.zeros(len(sv)), wind.stem_bend,
+                                                      np.zeros(len(sv))]).astype(np.float32), "VEC3")}
         prim = b.g.Primitive(attributes=b.g.Attributes(**attrs), indices=b.indices(sf, len(sv)),
                              material=stem_mat)
         children.append(b.node(name="Stem", mesh=b.mesh("Stem", [prim])))
@@ -370,6 +384,15 @@ def build_gltf(asset: PlantAsset, textures=None, options: GltfOptions | None = N
         counts["triangles"] += len(sf)
     root = b.node(name=name, children=children, extras={"leaffit": extras})
     return b.finish(root), counts
+
+
+#: what the glTF's wind attributes hold (also in the root node's extras, for readers)
+WIND_EXTRAS = {
+    "_WIND": "per vertex: (leaf flutter 0 at the base -> 1 at the apex, branch bend 0 at the root "
+             "-> 1 at the farthest stem node, per-leaf phase in [0, 1))",
+    "_WINDPIVOT, _WINDAXIS": "per instance (EXT_mesh_gpu_instancing): the petiole base and the "
+                             "unit base-to-apex axis, glTF frame",
+}
 
 
 def write_gltf(path, asset: PlantAsset, textures=None, options: GltfOptions | None = None) -> GltfResult:

@@ -220,7 +220,8 @@ def _asset_transforms(asset, frame: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def evaluate(asset, frame: str = "input", dtype=np.float64,
-             evaluator: LeafEvaluator | None = None, separate_sheets: bool = False) -> BakedLeaves:
+             evaluator: LeafEvaluator | None = None, separate_sheets: bool = False,
+             wind=None) -> BakedLeaves:
     """Explicit meshes of all leaves (and the stem) of ``asset``.
 
     asset : PlantAsset (``leaffit_usd.usd.asset``), e.g. from ``usd.reader.read_stage``
@@ -231,8 +232,17 @@ def evaluate(asset, frame: str = "input", dtype=np.float64,
     separate_sheets : False (default): the exact MLS image of the template, whose front and back
         sheets coincide. True: the sheets pushed apart as the stage's baked variant has them
         (see :func:`asset_leaves`). No-op when the asset records no offset.
+    wind : a ``usd.wind.WindParams`` moment: every leaf turned about its axis through its pivot
+        (its MLS targets turned, ``usd.wind.wind_targets``), as the GLSL deformer's wind term
+        does; None: at rest.
     Returns :class:`BakedLeaves`.
     """
+    if wind is not None:
+        import dataclasses
+
+        from leaffit_usd.usd.wind import wind_targets
+
+        asset = dataclasses.replace(asset, targets=wind_targets(asset, wind))
     ev = evaluator if evaluator is not None else LeafEvaluator.from_asset(asset)
     L, V = asset.n_leaves, len(ev.template_points)
     _require("targets", asset.targets, (None, ev.K, 3), f"(L, {ev.K}, 3) float")

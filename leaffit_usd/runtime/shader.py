@@ -39,18 +39,22 @@ def snippet_source() -> str:
     return SNIPPET.read_text()
 
 
-def vertex_shader_source(variant: str = "controls", max_k: int = MAX_K) -> str:
+def vertex_shader_source(variant: str = "controls", max_k: int = MAX_K, wind: bool = False) -> str:
     """The complete vertex shader (GLSL 4.30 core) with the snippet included.
 
     variant : "controls" (weights computed per vertex from the control points, the default) or
         "weights" (per-vertex (V, K) weights precomputed on the CPU, read from an SSBO)
     max_k : size of the per-vertex weight array (LEAFFIT_MAX_K); K must not exceed it
+    wind : with the wind term (``LEAFFIT_WIND``: each leaf turned about its axis, see
+        ``leaffit_deform.vert`` and ``usd.wind``)
     """
     if variant not in VARIANTS:
         raise ParameterError("variant", " or ".join(repr(v) for v in VARIANTS), variant)
     defines = f"#define LEAFFIT_MAX_K {int(max_k)}\n"
     if variant == "weights":
         defines += "#define LEAFFIT_USE_WEIGHTS 1\n"
+    if wind:
+        defines += "#define LEAFFIT_WIND 1\n"
     text = VERTEX_SHADER.read_text()
     return _INCLUDE.sub(lambda m: defines + (GLSL_DIR / m.group(1)).read_text(), text, count=1)
 
@@ -96,29 +100,49 @@ class GLDeformer:
 
     ctx : a moderngl context (OpenGL >= 4.3); None creates a headless EGL one.
     variant : "controls" or "weights" (see :func:`vertex_shader_source`).
+    wind : build the wind term in (:meth:`deform` then takes a ``usd.wind.WindParams``).
     """
 
-    def __init__(self, ctx=None, variant: str = "controls"):
+    def __init__(self, ctx=None, variant: str = "controls", wind: bool = False):
         import moderngl
 
         self.ctx = ctx if ctx is not None else create_headless_context()
         self.variant = variant
-        self.program = self.ctx.program(vertex_shader=vertex_shader_source(variant),
+        self.wind = bool(wind)
+        self.program = self.ctx.program(vertex_shader=vertex_shader_source(variant, wind=self.wind),
                                         varyings=["out_position"])
         # EGL contexts have no default framebuffer: without one bound the draw (even with
         # rasterizer discard) silently produces zeros on Mesa.
         self._fbo = self.ctx.simple_framebuffer((1, 1))
         self._moderngl = moderngl
 
+    def _wind_buffer(self, asset, wind):
+        """The wind SSBO (binding 3: per instance (pivot, phase), (axis, 0), local frame) and the
+        wind uniforms of one moment."""
+        from leaffit_usd.usd.wind import WindParams, wind_data
+
+        w = wind_data(asset)
+        data = np.zeros((asset.n_leaves, 2, 4), np.float32)
+        data[:, 0, :3], data[:, 0, 3], data[:, 1, :3] = w.pivots_local, w.phases, w.axes_local
+        buf = self.ctx.buffer(np.ascontiguousarray(data).tobytes() or np.zeros(8, np.float32).tobytes())
+        buf.bind_to_storage_buffer(3)
+        m = wind if wind is not None else WindParams(strength=0.0)
+        for name, value in (("leaffit_wind_time", m.time), ("leaffit_wind_strength", m.strength),
+                            ("leaffit_wind_frequency", m.frequency)):
+            if name in self.program:
+                self.program[name].value = float(value)
+        return buf
+
     def release(self) -> None:
         self._fbo.release()
         self.program.release()
 
-    def deform(self, asset, model: np.ndarray | None = None) -> np.ndarray:
+    def deform(self, asset, model: np.ndarray | None = None, wind=None) -> np.ndarray:
         """Deformed vertices of every instance of ``asset`` (PlantAsset).
 
         model : (4, 4) asset -> output frame (None: identity, i.e. the asset frame; pass
-            ``asset.asset_to_input`` for the input frame). Returns (L, V, 3) float32.
+            ``asset.asset_to_input`` for the input frame); wind : a ``usd.wind.WindParams``
+            moment (needs ``wind=True`` at construction; None: at rest). Returns (L, V, 3) float32.
         """
         from leaffit_usd.fit.mls import mls_weights
 
@@ -150,6 +174,8 @@ class GLDeformer:
         ibo = ctx.buffer(np.ascontiguousarray(inst).tobytes())
         out = ctx.buffer(reserve=L * V * 3 * 4)
         bufs += [vbo, ibo, out]
+        if self.wind:
+            bufs.append(self._wind_buffer(asset, wind))
 
         for name, value in (("leaffit_K", int(K)), ("leaffit_sigma", float(asset.sigma)),
                             ("leaffit_reg", float(asset.reg))):

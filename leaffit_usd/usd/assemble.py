@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from leaffit_usd.usd.wind import skeleton_from_segments
 from leaffit_usd.version import __version__
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.fit.result import LeafFits
@@ -136,6 +137,9 @@ def asset_from_results(template: TemplateMesh, fits: LeafFits, stem: Stem | None
                 np.asarray(m.faces, np.int32), None if c is None else np.asarray(c, np.float32))
 
     stem_points, stem_faces, stem_colors = stem_arrays(stem)
+    skeleton, skeleton_parents = (np.zeros((0, 3)), np.zeros(0, np.int32)) if stem is None else \
+        skeleton_from_segments(stem.starts, stem.ends, stem.parent)
+    skeleton = (s_a * np.asarray(skeleton, np.float64) @ r_a.T).astype(np.float32)
     lods = []
     t_lods = list(getattr(template, "lods", []) or [])
     s_lods = list(getattr(stem, "lods", []) or []) if stem is not None else []
@@ -186,4 +190,6 @@ def asset_from_results(template: TemplateMesh, fits: LeafFits, stem: Stem | None
         metadata=metadata,
         stem_colors=stem_colors,
         lods=lods,
+        skeleton_points=skeleton,
+        skeleton_parents=skeleton_parents,
     )

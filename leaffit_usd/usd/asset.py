@@ -36,6 +36,9 @@ class PlantAsset:
         above are LOD0
     tints : (L, 3) float32 or None, per-leaf linear-RGB gain multiplied into the template texture
         (``mesh.appearance``; USD ``primvars:leaffit:tint``, glTF ``COLOR_0``); None = no tint
+    skeleton_points : (S, 3) float32, asset frame, the stem skeleton's nodes (node 0 the root),
+        or None; skeleton_parents : (S,) int32, each node's parent (-1 at the root), or None
+        (the wind data hangs every leaf on a node: ``usd.wind``)
     """
 
     template_points: np.ndarray
@@ -60,6 +63,8 @@ class PlantAsset:
     stem_colors: np.ndarray | None = None
     lods: list = field(default_factory=list)
     tints: np.ndarray | None = None
+    skeleton_points: np.ndarray | None = None
+    skeleton_parents: np.ndarray | None = None
 
     @property
     def n_leaves(self) -> int:

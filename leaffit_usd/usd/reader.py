@@ -181,7 +181,26 @@ def read_stage_object(stage, path="<stage>") -> PlantAsset:
         stem_points=stem_pts, stem_faces=stem_faces, asset_to_input=asset_to_input,
         front_texture=front_tex, back_texture=back_tex, metadata=metadata,
         tints=tints, stem_colors=_stem_colors(root, len(stem_pts)), lods=_read_lods(stage, tmpl_prim, root, off),
+        **_skeleton(root),
     )
+
+
+def _skeleton(root) -> dict:
+    """The stem skeleton (``skeleton_points`` (S, 3) float32, ``skeleton_parents`` (S,) int32)
+    from the Stem's constant primvars, or Nones (a stage without wind data)."""
+    from pxr import UsdGeom
+
+    prim = root.GetChild("Stem") if root else None
+    out = {"skeleton_points": None, "skeleton_parents": None}
+    if not prim:
+        return out
+    pv = UsdGeom.PrimvarsAPI(prim)
+    pts, par = pv.GetPrimvar("leaffit:skeletonPoints"), pv.GetPrimvar("leaffit:skeletonParents")
+    if pts and par and pts.HasValue() and par.HasValue():
+        p, q = _np(pts.Get(), np.float32, (3,)), np.asarray(par.Get(), np.int32)
+        if len(p) == len(q):
+            out.update(skeleton_points=p, skeleton_parents=q)
+    return out
 
 
 def _read_stem(root) -> tuple[np.ndarray, np.ndarray]:

@@ -37,6 +37,7 @@ from leaffit_usd.usd import schema as S
 from leaffit_usd.version import __version__
 from leaffit_usd.usd.asset import PlantAsset
 from leaffit_usd.usd.vt import extent, matrix4d, quat_arrays, vec3f_array
+from leaffit_usd.usd.wind import template_flutter, wind_data
 
 log = logging.getLogger("leaffit_usd")
 
@@ -252,6 +253,10 @@ def _write_texture(path: Path, img: np.ndarray, options: WriteOptions) -> None:
 
 
 TINT_PRIMVAR = "leaffit:tint"   # color3f per instance (PointInstancer) / per leaf Mesh (baked)
+# wind (usd.wind): per instance on the PointInstancer, per vertex on the stem
+WIND_PIVOT, WIND_AXIS = "leaffit:windPivot", "leaffit:windAxis"
+WIND_NODE, WIND_PHASE, WIND_BEND = "leaffit:windNode", "leaffit:windPhase", "leaffit:windBend"
+WIND_FLUTTER = "leaffit:windFlutter"   # per vertex, baked leaves
 
 
 def make_material(stage, path: str, texture: str | None, color, has_alpha: bool = False,
@@ -354,6 +359,36 @@ def stem_material_color(a: PlantAsset) -> tuple:
     return STEM_COLOR
 
 
+def _author_wind(pv, w) -> None:
+    """The per-instance wind primvars of the leaves' PointInstancer (``usd.wind``): pivot (the
+    petiole base) and axis (base to apex), asset frame; the stem skeleton node each leaf hangs
+    from; its phase in [0, 1)."""
+    from pxr import Sdf, UsdGeom, Vt
+
+    pv.CreatePrimvar(WIND_PIVOT, Sdf.ValueTypeNames.Point3fArray, UsdGeom.Tokens.vertex).Set(vec3f_array(w.pivots))
+    pv.CreatePrimvar(WIND_AXIS, Sdf.ValueTypeNames.Vector3fArray, UsdGeom.Tokens.vertex).Set(vec3f_array(w.axes))
+    pv.CreatePrimvar(WIND_NODE, Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex).Set(
+        Vt.IntArray.FromNumpy(np.asarray(w.nodes, np.int32)))
+    pv.CreatePrimvar(WIND_PHASE, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex).Set(
+        Vt.FloatArray.FromNumpy(np.asarray(w.phases, np.float32)))
+
+
+def _author_stem_wind(mesh, a: PlantAsset, w) -> None:
+    """The stem's wind data: ``primvars:leaffit:windBend`` per vertex (the distance along the
+    skeleton from the root, 0..1) and the skeleton the leaves' ``windNode`` indexes (constant
+    primvars ``leaffit:skeletonPoints`` (asset frame) and ``leaffit:skeletonParents``)."""
+    from pxr import Sdf, UsdGeom, Vt
+
+    pv = UsdGeom.PrimvarsAPI(mesh)
+    pv.CreatePrimvar(WIND_BEND, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex).Set(
+        Vt.FloatArray.FromNumpy(np.asarray(w.stem_bend, np.float32)))
+    if a.skeleton_points is not None and len(a.skeleton_points):
+        pv.CreatePrimvar("leaffit:skeletonPoints", Sdf.ValueTypeNames.Point3fArray,
+                         UsdGeom.Tokens.constant).Set(vec3f_array(a.skeleton_points))
+        pv.CreatePrimvar("leaffit:skeletonParents", Sdf.ValueTypeNames.IntArray,
+                         UsdGeom.Tokens.constant).Set(Vt.IntArray.FromNumpy(np.asarray(a.skeleton_parents, np.int32)))
+
+
 def _set_stem_geometry(mesh, a: PlantAsset) -> None:
     """Points, topology, smooth vertex normals and (when known) displayColor of the stem Mesh."""
     from pxr import Sdf, UsdGeom, Vt
@@ -448,12 +483,14 @@ def _write_geometry_layer(geom_out: Path, main_name: str, a: PlantAsset, leaves:
     make_material(stage, f"{looks}/LeafFront", front_tex or None, green, has_alpha, tinted)
     make_material(stage, f"{looks}/LeafBack", back_tex or None, green, has_alpha, tinted)
     stem_mat = make_stem_material(stage, f"{looks}/Stem", a)
-    tmpl = _author_leaf_instancer(stage, f"{root}/Leaves", a, leaves, looks, tints)
+    wind = wind_data(a)
+    tmpl = _author_leaf_instancer(stage, f"{root}/Leaves", a, leaves, looks, tints, wind)
 
     if len(a.stem_points) and len(a.stem_faces):
         stem = UsdGeom.Mesh.Define(stage, f"{root}/Stem")
         stem.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
         _set_stem_geometry(stem, a)
+        _author_stem_wind(stem, a, wind)
         UsdShade.MaterialBindingAPI.Apply(stem.GetPrim()).Bind(stem_mat)
         stem.GetPrim().SetCustomDataByKey("leaffit:role", "stem")
 
@@ -464,10 +501,10 @@ def _write_geometry_layer(geom_out: Path, main_name: str, a: PlantAsset, leaves:
 
 
 def _author_leaf_instancer(stage, inst_path: str, a: PlantAsset, leaves: np.ndarray, looks: str,
-                           tints):
+                           tints, wind):
     """The leaves: one template Mesh prototype + a PointInstancer with the MLS deformer
-    (LeafFitMLSDeformerAPI, targets, labels, tints). leaves : (L, V, 3) explicit leaves, for the
-    extent. Returns the template Mesh."""
+    (LeafFitMLSDeformerAPI, targets, labels, tints, wind: ``usd.wind.WindData``). leaves :
+    (L, V, 3) explicit leaves, for the extent. Returns the template Mesh."""
     from pxr import Sdf, UsdGeom, Vt
 
     inst = UsdGeom.PointInstancer.Define(stage, inst_path)
@@ -490,6 +527,7 @@ def _author_leaf_instancer(stage, inst_path: str, a: PlantAsset, leaves: np.ndar
     if tints is not None:
         pv.CreatePrimvar(TINT_PRIMVAR, Sdf.ValueTypeNames.Color3fArray,
                          UsdGeom.Tokens.vertex).Set(vec3f_array(tints))
+    _author_wind(pv, wind)
     inst.CreateExtentAttr(extent(leaves))
     ip = inst.GetPrim()
     ip.SetCustomDataByKey("leaffit:role", "leaves")
@@ -710,8 +748,9 @@ def write_baked_layer(out: Path, a: PlantAsset, leaves: np.ndarray, lod_leaves: 
     root = UsdGeom.Xform.Define(stage, "/BakedLeaves")
     stage.SetDefaultPrim(root.GetPrim())
     topo_path = f"/BakedLeaves/{_baked_topology(0)}"
+    wind = wind_data(a)
     _author_baked_topology(stage, topo_path, a, single_sheet(a))
-    _author_baked_leaves(stage, "/BakedLeaves", topo_path, leaves, a.leaf_labels, _tints(a))
+    _author_baked_leaves(stage, "/BakedLeaves", topo_path, leaves, a.leaf_labels, _tints(a), wind)
     # coarser levels of detail: one inactive group each (the main layer's LOD variant
     # deactivates the LOD0 leaves and activates its group)
     for k, lod in enumerate(a.lods if lod_leaves else [], start=1):
@@ -720,7 +759,7 @@ def write_baked_layer(out: Path, a: PlantAsset, leaves: np.ndarray, lod_leaves: 
         tp = f"/BakedLeaves/{_baked_topology(k)}"
         _author_baked_topology(stage, tp, la, False)
         grp = UsdGeom.Xform.Define(stage, f"/BakedLeaves/LOD{k}")
-        _author_baked_leaves(stage, f"/BakedLeaves/LOD{k}", tp, lv, a.leaf_labels, None)
+        _author_baked_leaves(stage, f"/BakedLeaves/LOD{k}", tp, lv, a.leaf_labels, None, wind)
         grp.GetPrim().SetActive(False)
     stage.GetRootLayer().Save()
 
@@ -738,14 +777,18 @@ def _author_baked_topology(stage, path: str, a: PlantAsset, double_sided: bool) 
     mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(a.template_faces, np.int32).ravel()))
     st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
     st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(a.template_uvs, np.float32)))
+    # leaf flutter per vertex, the same for every leaf (it follows the template: usd.wind)
+    UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(WIND_FLUTTER, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex).Set(
+        Vt.FloatArray.FromNumpy(template_flutter(a.template_points)))
     _bind_sides(stage, mesh, _face_sides(a), None)
 
 
 def _author_baked_leaves(stage, parent: str, topo_path: str, leaves: np.ndarray, labels,
-                         tints) -> None:
+                         tints, wind) -> None:
     """``parent/leaf_0000`` ...: one Mesh per leaf inheriting ``topo_path``, with its points
-    ((L, V, 3) ``leaves``), extent, label ((L,) ``labels``) and, if given, tint ((L, 3))."""
-    from pxr import UsdGeom
+    ((L, V, 3) ``leaves``), extent, label ((L,) ``labels``), if given tint ((L, 3)), and its
+    wind (``usd.wind.WindData``: constant primvars pivot, axis, node, phase, bend)."""
+    from pxr import Gf, Sdf, UsdGeom
 
     for j in range(len(leaves)):
         leaf = UsdGeom.Mesh.Define(stage, f"{parent}/leaf_{j:04d}")
@@ -755,6 +798,12 @@ def _author_baked_leaves(stage, parent: str, topo_path: str, leaves: np.ndarray,
         leaf.GetPrim().SetCustomDataByKey("leaffit:leafLabel", int(labels[j]))
         if tints is not None:
             set_leaf_tint(leaf, tints[j])
+        pv, c = UsdGeom.PrimvarsAPI(leaf), UsdGeom.Tokens.constant
+        pv.CreatePrimvar(WIND_PIVOT, Sdf.ValueTypeNames.Point3f, c).Set(Gf.Vec3f(*map(float, wind.pivots[j])))
+        pv.CreatePrimvar(WIND_AXIS, Sdf.ValueTypeNames.Vector3f, c).Set(Gf.Vec3f(*map(float, wind.axes[j])))
+        pv.CreatePrimvar(WIND_NODE, Sdf.ValueTypeNames.Int, c).Set(int(wind.nodes[j]))
+        pv.CreatePrimvar(WIND_PHASE, Sdf.ValueTypeNames.Float, c).Set(float(wind.phases[j]))
+        pv.CreatePrimvar(WIND_BEND, Sdf.ValueTypeNames.Float, c).Set(float(wind.leaf_bend[j]))
 
 
 # ----------------------------------------------------------------------------------------------
