@@ -15,7 +15,9 @@ one of the first planes. A plane is the soil (:func:`find_soil`) when, seen alon
 * on the other side (above) stands the plant: more samples than below, rising at least
   ``MIN_RISE`` inlier distances;
 * the disc is not of the plant's colour: its median colour is at least ``SOIL_CONTRAST`` (RGB
-  distance) from the median colour of the plant's upper part. Soil, bark, pebbles are not
+  distance) from the median colour of the far part of each side: the plant's upper part, the
+  pot's bottom (:func:`_unlike_both_sides`; a leaf layer read upside down has the plant's colour
+  on its pot side). Soil, bark, pebbles are not
   foliage; a layer of touching leaflets in a flat canopy can look like a disc with leaves above
   it in a shell, and only its colour tells it from soil (a hard4 soybean: 0.05-0.06, against
   0.22-0.49 for the real houseplant's soil and the capture-realism samples'). Soil under green
@@ -115,6 +117,19 @@ def _pot_below(h, xy, rho, thr, radius) -> bool:
     return float(np.quantile(h[above], 0.99)) >= MIN_RISE * thr
 
 
+def _unlike_both_sides(colors: np.ndarray, disc: np.ndarray, h: np.ndarray) -> bool:
+    """Whether the disc's median colour (samples ``disc``) is at least ``SOIL_CONTRAST`` from
+    the median colour of the far part (beyond 30 % of the reach) of each side of the plane
+    (heights ``h`` (M,)): the plant's top on one side, the pot's bottom on the other. A layer of
+    leaves has the plant's colour on one side or the other, whichever way up it is read."""
+    c = np.median(colors[disc], axis=0)
+    for hs in (h, -h):
+        far = hs > 0.3 * float(np.quantile(hs, 0.99))
+        if far.any() and np.linalg.norm(c - np.median(colors[far], axis=0)) < SOIL_CONTRAST:
+            return False
+    return True
+
+
 def find_soil(s: np.ndarray, colors: np.ndarray, planes: list, thr: float, voxel: float,
               up=None) -> SoilDisc | None:
     """The soil among the candidate ``planes`` [(unit normal (3,), d)] of the samples ``s``
@@ -143,10 +158,7 @@ def find_soil(s: np.ndarray, colors: np.ndarray, planes: list, thr: float, voxel
                 continue
             if not _pot_below(sign * h0, off, rho, thr, radius):
                 continue
-            hs = sign * h0
-            top = hs > 0.3 * float(np.quantile(hs, 0.99))
-            if np.linalg.norm(np.median(colors[on[in_patch]], axis=0)
-                              - np.median(colors[top], axis=0)) < SOIL_CONTRAST:
+            if not _unlike_both_sides(colors, on[in_patch], h0):
                 continue
             if best is None or len(pxy) > best.patch:
                 centre = basis @ c - n_ * (d_ + float(n_ @ (basis @ c)))
