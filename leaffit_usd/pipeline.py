@@ -216,8 +216,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         n_leaves = seg.n_leaves
         cloud = _FileIds.of(cloud)
         prep = None
-    solver = f"{fit_p.steps} Adam steps" if fit_p.steps else f"{fit_p.refine} Gauss-Newton iterations"
-    with T.stage("fit", f"fitting the template to {n_leaves} leaves (K={fit_p.K}, {solver})"):
+    with T.stage("fit", f"fitting the template to {n_leaves} leaves (K={fit_p.K}, {fit_p.solver()})"):
         fits = fit_leaves(cw, seg, fit_p)
     with T.stage("mesh", "building the template mesh and textures"):
         template = build_template_mesh(cw, fits, mesh_p)

@@ -110,18 +110,19 @@ def test_the_asset_does_not_depend_on_the_file_order(tmp_path):
 def test_torch_numerics_run_single_threaded(monkeypatch):
     """fit_leaves and the texture-bake renderer run with 1 torch thread whatever the caller set,
     and give the caller's setting back."""
+    import leaffit_usd.fit.adam as adam
     import leaffit_usd.fit.register as reg
     from samples.synthetic.fit import make_plant
     from leaffit_usd.splats import render
 
     seen = []
-    real = reg.render_orthographic
+    real = adam.render_orthographic
 
     def spy(*a, **k):
         seen.append(torch.get_num_threads())
         return real(*a, **k)
 
-    monkeypatch.setattr(reg, "render_orthographic", spy)
+    monkeypatch.setattr(adam, "render_orthographic", spy)
     plant = make_plant(n_leaves=3, n_gaussians=1500, seed=1)
     saved = torch.get_num_threads()
     try:

@@ -54,20 +54,20 @@ def add_options(p) -> None:
     g = add_segment_arguments(p)
     g.add_argument("--labels", metavar="L.npz", help="reuse a segmentation: .npz with 'labels' (int per input Gaussian, file order, 0 = stem)")
     add_edits_argument(g)
-    g = p.add_argument_group("fit (paper defaults, except K, sigma, the regulariser and the refinement: see --paper-fit)")
+    g = p.add_argument_group("fit (Gauss-Newton; paper defaults otherwise, except K, sigma and the regulariser: see --paper-fit)")
     g.add_argument("--template", default=None, metavar="ID|auto",
                    help=f"template leaf: auto or a leaf label ({fit('template')})")
     g.add_argument("-K", type=pos_int, default=None, help=f"control points per leaf ({fit('K')})")
-    g.add_argument("--steps", type=pos_int, default=None, help=f"optimisation steps ({fit('steps')})")
+    g.add_argument("--steps", type=pos_int, default=None, help=f"Adam steps before Gauss-Newton ({fit('steps')}; the paper: {FitParams.paper().steps})")
     g.add_argument("--lr", type=pos_float, default=None, help=f"learning rate ({fit('lr')})")
     g.add_argument("--lam", type=float, default=None, help=f"Chamfer weight lambda ({fit('lam')})")
     g.add_argument("--sigma", type=_sigma, default=None, metavar="auto|S",
                    help=f"MLS kernel width: auto = {fit('sigma_relative')} x the template leaf's size "
                         f"({fit('sigma')}), or working units (paper: {FitParams.paper().sigma:g})")
     g.add_argument("--refine", type=pos_int, default=None, metavar="N",
-                   help=f"Gauss-Newton refinement iterations after Adam ({fit('refine')}; 0 = Adam only)")
+                   help=f"Gauss-Newton iterations ({fit('refine')}; 0 = Adam only)")
     g.add_argument("--paper-fit", action="store_true",
-                   help="the paper's registration exactly: K 32, sigma 0.1, no refinement")
+                   help="the paper's registration exactly: K 32, sigma 0.1, 200 Adam steps, no Gauss-Newton")
     g.add_argument("--no-optimize", action="store_true", help="initial correspondence only (ablation)")
     g.add_argument("--seed", type=pos_int, default=None,
                    help="random seed of every stage: isolation's samples, the segmentation's subsets, "

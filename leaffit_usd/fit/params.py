@@ -10,9 +10,13 @@ from leaffit_usd.fit.denoise import DenoiseParams
 from leaffit_usd.fit.mls import DEFAULT_REG, DEFAULT_SIGMA
 
 #: FitParams overrides that give the paper's registration exactly (``FitParams.paper()``,
-#: ``convert --paper-fit``): its 32 control points, its absolute kernel width, Adam only, and the
-#: smallest regulariser that keeps a flat template's MLS solvable (the paper has none).
-PAPER_FIT = {"K": 32, "sigma": DEFAULT_SIGMA, "refine": 0, "reg": 0.01}
+#: ``convert --paper-fit``): its 32 control points, its absolute kernel width, its initial
+#: correspondence, 200 Adam steps at lr 7e-3 and nothing after them, and the smallest regulariser
+#: that keeps a flat template's MLS solvable (the paper has none).
+PAPER_FIT = {"K": 32, "sigma": DEFAULT_SIGMA, "steps": 200, "lr": 7e-3, "refine": 0, "reg": 0.01,
+             "start": "assignment"}
+#: how the targets start (``FitParams.start``)
+STARTS = ("rigid", "assignment")
 
 #: a leaf is seen face-on along its frame's +Z when its mean normal is within this angle of +Z
 #: (degrees): then its xy silhouette is its outline (the fit's outline term) and the template is
@@ -26,7 +30,8 @@ MAX_K = 64
 @dataclass
 class FitParams:
     """Registration parameters (working units: plant height 1). Defaults = ours; the paper's
-    optimisation exactly is ``FitParams.paper()`` (K 32, sigma 0.1, no refinement).
+    optimisation exactly is ``FitParams.paper()`` (K 32, sigma 0.1, 200 Adam steps, no
+    Gauss-Newton).
 
     K : control points per leaf (48; the paper's 32: ``FitParams.paper()``). Why 48: with the
         refinement's outline term the field follows each leaf's own outline, and 32 handles
@@ -34,20 +39,32 @@ class FitParams:
         and reg 0.03 against 32 and 0.01: leaf HD, Corr, PSNR and SSIM better on 12, outline
         error on 11 (``benchmarks/render.py``; docs/fitting.md, "Control points"). 64 threw a
         region of two apple leaves off the leaf (``benchmarks/results/render_k64.json``).
-    steps, lr : Adam iterations (200) and learning rate (7e-3)
+    steps, lr : Adam iterations and learning rate (ours: 0, no Adam: Gauss-Newton from the
+        start; the paper's: 200 and 7e-3, ``FitParams.paper()``). Why 0: the MLS field is linear
+        in the targets, so each leaf's fit is a small least-squares problem that Gauss-Newton
+        solves in 10 iterations (``fit.gauss_newton``); Adam's 200 rendered steps cost 2 s per
+        leaf on 100k Gaussians, 10x the solve, and left the shape error where 10 solves from the
+        rigid start leave it (suite, ``benchmarks/deformation.py``). Range >= 0.
     lam : Chamfer weight lambda (0.7); reg : MLS regulariser (fraction of sigma; 0.03, why:
         ``fit.mls``)
     sigma : MLS kernel width: "auto" = ``sigma_relative`` x the template leaf's size (RMS radius
         in its plane; ours, see the module doc), or a number in working units (paper: 0.1)
-    refine : Gauss-Newton iterations after Adam (ours; 0 = the paper's optimisation only)
-    refine_points : the refinement pairs at most this many of the template's and of each leaf's
-        denoised Gaussians (a position-order random sample; 0 = all): its cost grows with their
-        number (profiled on the 1M capsicum at the 65,536 cap: 30 s of the fit with all of
-        them, 7 s of it at 16,384 under the old cap)
+    refine : Gauss-Newton iterations (after Adam when ``steps`` > 0; ours: 10; 0 = none, the
+        paper's optimisation only). Range >= 0.
+    refine_points : Gauss-Newton pairs at most this many of the template's and of each leaf's
+        denoised Gaussians, farthest point samples (uniform over the blade, as the area-sampled
+        shape errors are; 0 = all). 2048: the same errors as 16,384 random ones (4 suite plants,
+        Corr x10 0.0063 both) at a quarter of the cost. Range >= 0.
     plane_weight, landmark_weight : weights of the point-to-plane (depth) term and of the
-        base/apex landmark term in the refinement; damping : its Levenberg-Marquardt damping
+        base/apex landmark term in the Gauss-Newton objective
+    damping, damping_start : Marquardt damping (a fraction of each unknown's own curvature) of
+        the last and of the first Gauss-Newton iteration, geometric in between (1.0 -> 1e-3;
+        why: ``fit.gauss_newton``). Range >= 0.
+    start : where the targets start: "rigid" (ours: the template placed by the leaf's frame and
+        scale) or "assignment" (the paper's: FPS of the leaf matched by Jonker-Volgenant); the
+        "w/o optim." ablation (``optimize=False``) is the assignment either way
     outline_weight : weight of the refinement's silhouette-outline Chamfer, relative to the
-        surface Chamfer's lam (ours; 0 = off; see ``fit.register._refine``)
+        surface Chamfer's lam (ours; 0 = off; see ``fit.gauss_newton``)
     template : "auto" or a leaf label (int or digit string)
     optimize : False = initial correspondence only (the paper's "w/o optim." ablation)
     seed : torch/numpy seed (the method itself is deterministic)
@@ -69,17 +86,19 @@ class FitParams:
     """
 
     K: int = 48
-    steps: int = 200
+    steps: int = 0
     lr: float = 7e-3
     lam: float = 0.7
     sigma: float | str = "auto"
     sigma_relative: float = 0.7
     reg: float = DEFAULT_REG
     refine: int = 10
-    refine_points: int = 16384
+    refine_points: int = 2048
     plane_weight: float = 1.0
     landmark_weight: float = 0.05
     damping: float = 1e-3
+    damping_start: float = 1.0
+    start: str = "rigid"
     outline_weight: float = 1.0
     template: str | int = "auto"
     optimize: bool = True
@@ -93,8 +112,16 @@ class FitParams:
 
     @classmethod
     def paper(cls, **overrides) -> "FitParams":
-        """The paper's registration exactly: K = 32, sigma = 0.1 for the kernel, Adam only."""
+        """The paper's registration exactly: K = 32, sigma = 0.1 for the kernel, its initial
+        correspondence, 200 Adam steps (lr 7e-3), no Gauss-Newton."""
         return cls(**{**PAPER_FIT, **overrides})
+
+    def solver(self) -> str:
+        """What the optimisation runs, for progress lines: "10 Gauss-Newton iterations",
+        "200 Adam steps", "200 Adam steps + 10 Gauss-Newton iterations" or "no optimisation"."""
+        parts = ([f"{self.steps} Adam steps"] if self.steps else []) + (
+            [f"{self.refine} Gauss-Newton iterations"] if self.refine else [])
+        return " + ".join(parts) if self.optimize and parts else "no optimisation"
 
     def validate(self) -> None:
         for name, lo in (("K", 1), ("steps", 0), ("image_size", 8), ("max_points", 16),
@@ -110,7 +137,10 @@ class FitParams:
             if not (isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
                     and v > 0):
                 raise ParameterError(name, "a positive number" + (" or 'auto'" if name == "sigma" else ""), v)
-        for name in ("lam", "plane_weight", "landmark_weight", "damping", "outline_weight"):
+        if self.start not in STARTS:
+            raise ParameterError("start", " or ".join(STARTS), self.start)
+        for name in ("lam", "plane_weight", "landmark_weight", "damping", "damping_start",
+                     "outline_weight"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
                 raise ParameterError(name, "a number >= 0", v)

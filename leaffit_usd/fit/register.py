@@ -8,34 +8,21 @@ Per plant, in the working frame (root at origin, +Z up, height 1):
    the principal plane, +Z the normal to the upper side. Each leaf gets a uniform **scale**
    ``s_j = size_j / size_template`` (size = RMS distance of the points from their centroid in the
    leaf plane), so its points in *template units* are ``R_j^T (x - base_j) / s_j``.
-3. **Template**: ``params.template`` (a leaf label) or ``"auto"``: among the leaves that are not
-   degenerate and whose size lies within the middle half (25th-75th percentile) of the leaf sizes,
-   the one with the highest ``symmetry * fill * min(1, density / median density)``:
-   *symmetry* = min/max of the blade area left and right of the midrib (a torn or half-occluded
-   leaf is asymmetric), *fill* = occupied fraction of the convex hull of the points in the leaf
-   plane (holes, missing bites), *density* = Gaussians per unit area (how well it was observed;
-   of all the leaf's Gaussians, not of its ``leaf_gaussians`` subset).
-   Ties go to the size closest to the median, then the lowest label.
-4. **Control points**: farthest point sampling of K template points (``p``) and K points of each
-   target leaf; the initial one-to-one correspondence ``q0`` minimises the summed squared distance
-   in the aligned frames (Jonker-Volgenant, ``scipy.optimize.linear_sum_assignment``).
-5. **Optimisation** (``params.optimize``): the target control points of all leaves at once
-   (independent problems; Adam is per-coordinate, so batching does not couple them) minimise
-   ``L_depth + lam * L_chamfer`` with Adam (lr 7e-3, 200 steps), as the paper:
-   * ``L_depth``: mean squared difference of the depth maps (``splats.render``, orthographic, in
-     the target's PCA-aligned view, looking down its -Z) of the deformed template Gaussians and of
-     the target Gaussians, over the pixels where both are foreground (alpha > 0.5);
-   * ``L_chamfer``: symmetric Chamfer distance with squared distances (paper Eq.), template units.
-   The template's MLS weights (``fit.mls``, affine) are precomputed once: the deformed centres
-   are ``A @ q`` and each deformed Gaussian's covariance is ``J cov J^T`` with the MLS Jacobian
-   ``J = sum_k q_k (dA_k/dv)^T`` (also linear in q). For speed, each leaf is represented by at
-   most ``max_points`` Gaussians (farthest point sampling), template and target alike; pixels
-   the subset leaves uncovered (alpha <= 0.5) are outside Omega.
-6. **Refinement** (ours, ``params.refine`` iterations; ``FitParams.paper()`` skips it): Gauss-Newton
-   on the same objective, see :func:`_refine`, plus two landmarks that keep the tip covered: the
-   petiole base (the segmentation's) and the apex (the segmentation's, moved to the edge of the
-   denoised blade: :func:`_apex_at_blade_edge`).
-7. **Degenerate leaves** (fewer than K Gaussians after denoising, collinear, a size ratio to the
+3. **Template**: ``params.template`` (a leaf label) or ``"auto"`` (:mod:`.template_choice`:
+   symmetric, filled, well observed, of middling size).
+4. **Control points**: farthest point sampling of K template points (``p``). The paper's start
+   (``start="assignment"``): K points of each target leaf matched one to one to ``p`` by the
+   least summed squared distance in the aligned frames (Jonker-Volgenant,
+   ``scipy.optimize.linear_sum_assignment``); ours (``"rigid"``): ``q = p``, the template placed
+   by the leaf's frame and scale.
+5. **Optimisation** (``params.optimize``), all leaves at once:
+   * ours: Gauss-Newton on the depth + Chamfer objective with base/apex landmarks and the
+     silhouette outlines (:mod:`.gauss_newton`; the apex moved to the edge of the denoised
+     blade: :func:`_apex_at_blade_edge`), ``refine`` iterations;
+   * the paper's (``FitParams.paper()``): Adam on ``L_depth + lam * L_chamfer`` through the splat
+     renderer, lr 7e-3, 200 steps (:mod:`.adam`); with ``steps`` > 0 and ``refine`` > 0 Adam
+     runs first and Gauss-Newton finishes.
+6. **Degenerate leaves** (fewer than K Gaussians after denoising, collinear, a size ratio to the
    template beyond ``max_scale_ratio``, or a non-finite result) get a warning and the rigid fit:
    ``targets = p`` (identity MLS) with the leaf's frame and scale. Never NaN.
 
@@ -49,38 +36,38 @@ prints both rows, on 10 generated plants / 110 target leaves):
   template, the field has the same stiffness on any plant.
 * **48 control points, MLS regulariser 0.03** (the paper: 32; no regulariser): see
   ``FitParams`` and :mod:`leaffit_usd.fit.mls`.
-* **Refinement** (step 6): Adam stops short of the objective's optimum; the exact solves finish it.
-  Together: Corr 0.0085 -> 0.0071, CD 0.00009 -> 0.00006, HD 0.192 -> 0.168 (x10).
+* **Gauss-Newton from the rigid start** instead of 200 Adam steps (step 5): the field is linear
+  in the targets, so each solve is exact; 10 of them cost what 20 Adam steps did.
 The denoising sigma stays the paper's 0.1 (``denoise``).
 
-Timing (``benchmarks/fit_time.py``): a 14-leaf, 100k-Gaussian plant fits in ~13 s wall on 2 cores
-(one torch thread, always, for byte-identical results: ``leaffit_usd.determinism``; a second
-thread gained little on these small per-step tensors), peak RSS ~0.7 GB for the whole process;
-~60 ms per Adam step for 13 leaves x 1,024 Gaussians, 64^2 px.
+Timing (``benchmarks/profile_convert.py``): a 9-leaf, 100k-Gaussian plant fits in ~5 s of CPU
+(denoising ~2 s, outlines ~1 s, Gauss-Newton ~2 s); the paper's Adam ~25 s. One torch thread,
+always, for byte-identical results (``leaffit_usd.determinism``).
 """
 from __future__ import annotations
 
 import logging
-import math
 import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
 from scipy.optimize import linear_sum_assignment
-from scipy.spatial import ConvexHull, cKDTree
+from scipy.spatial import cKDTree
 
 from leaffit_usd.determinism import deterministic
 from leaffit_usd.errors import ParameterError
+from leaffit_usd.fit.adam import Covariances, optimize_adam, start_index
 from leaffit_usd.fit.denoise import DenoiseParams, denoise_leaf
+from leaffit_usd.fit.gauss_newton import refine_targets
 from leaffit_usd.fit.mls import DEFAULT_SIGMA, mls_weights
 from leaffit_usd.fit.params import FACE_ON_MAX_DEG, FitParams
 from leaffit_usd.fit.result import LeafFits
+from leaffit_usd.fit.template_choice import choose_template
 from leaffit_usd.geometry.pca import leaf_frame, pca
 from leaffit_usd.geometry.sampling import farthest_point_sampling, sample_at_most, voxel_centroids
 from leaffit_usd.segment.result import Segmentation
 from leaffit_usd.splats.cloud import GaussianCloud
-from leaffit_usd.splats.render import render_orthographic
 
 log = logging.getLogger("leaffit_usd")
 
@@ -135,7 +122,7 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
     means = np.asarray(cloud_working.means, np.float64)
     # covariances only of the Gaussians the optimisation renders (``_subset``): all N of them
     # were ~150 B per Gaussian of transient memory (0.75 GB at 5M)
-    covs = _Covariances(cloud_working)
+    covs = Covariances(cloud_working)
     opac = cloud_working.opacities.astype(np.float64)
 
     leaves = [_prepare_leaf(l, means, seg, params.denoise, params.leaf_gaussians, params.seed)
@@ -147,7 +134,7 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
         log.warning("fit: the segmentation has no leaves; nothing to fit")
         return _empty_fits(params)
 
-    tmpl = _choose_template(leaves, params)
+    tmpl = choose_template(leaves, params)
     T = leaves[tmpl - 1]
     if params.sigma == "auto":
         sigma = params.sigma_relative * T.size if T.size > 0 else DEFAULT_SIGMA
@@ -160,10 +147,11 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
     L = n_leaves
     fallback = np.array([bool(lf.degenerate) for lf in leaves])
     targets, init_ok = _initial_targets(leaves, p, tmpl, fallback)
-
+    if params.optimize and init_ok and params.start == "rigid":
+        targets[init_ok] = p                  # the template placed by each leaf's frame and scale
     if params.optimize and params.steps > 0 and init_ok:
-        opt = _optimize(T, [leaves[j] for j in init_ok], p, targets[init_ok], means, covs, opac,
-                        params)
+        opt = optimize_adam(T, [leaves[j] for j in init_ok], p, targets[init_ok], means, covs,
+                            opac, params)
         targets[init_ok] = opt
     if params.optimize and params.refine > 0 and init_ok:
         outlines = None
@@ -171,8 +159,8 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
             outlines = [_silhouette_outline(lf, covs, opac, params.fg_alpha, means)
                         if _seen_face_on(lf) else np.zeros((0, 2))
                         for lf in [T] + [leaves[j] for j in init_ok]]
-        targets[init_ok] = _refine(T, [leaves[j] for j in init_ok], p, targets[init_ok], params,
-                                   outlines)
+        targets[init_ok] = refine_targets(T, [leaves[j] for j in init_ok], p, targets[init_ok],
+                                          params, outlines)
 
     bad = ~np.isfinite(targets).all(axis=(1, 2))
     for j in np.flatnonzero(bad):
@@ -270,10 +258,7 @@ def _fit_errors(leaves: list, p, P_all, targets, params: FitParams) -> np.ndarra
 # preparation
 # ---------------------------------------------------------------------------------------------
 
-def _start_index(points: np.ndarray) -> int:
-    """FPS start: the point nearest to the local origin (the petiole base): deterministic and
-    comparable across leaves."""
-    return int(np.argmin((np.asarray(points) ** 2).sum(1))) if len(points) else 0
+_start_index = start_index
 
 
 def _leaf_subset(idx: np.ndarray, means: np.ndarray, cap: int, label: int, seed: int) -> np.ndarray:
@@ -418,72 +403,6 @@ def _base_apex(label, idx, means, seg):
     return means[idx[int(np.argmin(d))]], means[idx[int(np.argmax(d))]]
 
 
-def _shape_scores(lf: _Leaf):
-    """(symmetry, fill, density) of a leaf in its plane (see the module doc)."""
-    xy = lf.local[:, :2]
-    try:
-        hull = ConvexHull(xy)
-        area = float(hull.volume)
-    except Exception:  # noqa: BLE001 - qhull raises on flat/degenerate input
-        return 0.0, 0.0, 0.0
-    if area <= 0:
-        return 0.0, 0.0, 0.0
-    g = 24
-    lo, hi = xy.min(0), xy.max(0)
-    cell = np.maximum((hi - lo) / g, 1e-12)
-    ij = np.minimum(((xy - lo) / cell).astype(int), g - 1)
-    occ = np.zeros((g, g), bool)
-    occ[ij[:, 0], ij[:, 1]] = True
-    cx = lo[0] + (np.arange(g) + 0.5) * cell[0]
-    cy = lo[1] + (np.arange(g) + 0.5) * cell[1]
-    X, Y = np.meshgrid(cx, cy, indexing="ij")
-    eq = hull.equations
-    inside = (np.stack([X.ravel(), Y.ravel()], 1) @ eq[:, :2].T + eq[:, 2] <= 1e-12).all(1)
-    inside = inside.reshape(g, g)
-    fill = float((occ & inside).sum() / max(inside.sum(), 1))
-    cell_area = float(cell[0] * cell[1])
-    left = float((occ & (Y > 0)).sum()) * cell_area
-    right = float((occ & (Y < 0)).sum()) * cell_area
-    sym = min(left, right) / max(left, right, 1e-300)
-    # density of the whole leaf, not of its subset: with every leaf capped at leaf_gaussians
-    # (a dense capture), the subset's count / area only says how small the leaf is
-    n = len(xy)
-    if lf.all_gaussians is not None and lf.sampled is not None and len(lf.sampled):
-        n *= len(lf.all_gaussians) / len(lf.sampled)
-    return sym, fill, n / area
-
-
-def _choose_template(leaves: list[_Leaf], params: FitParams) -> int:
-    L = len(leaves)
-    if params.template != "auto":
-        lab = int(params.template)
-        if not 1 <= lab <= L:
-            raise ParameterError("template", f"a leaf label in 1..{L} or 'auto'", params.template)
-        if leaves[lab - 1].degenerate:
-            raise ParameterError("template", "a leaf that is not degenerate "
-                                 f"(leaf {lab}: {leaves[lab - 1].degenerate})", params.template)
-        return lab
-    ok = [lf for lf in leaves if not lf.degenerate]
-    if not ok:
-        best = max(leaves, key=lambda lf: (len(lf.local), -lf.label))
-        log.warning("fit: every leaf is degenerate; leaf %d (most Gaussians) is the template",
-                    best.label)
-        return best.label
-    sizes = np.array([lf.size for lf in ok])
-    q1, q3 = np.percentile(sizes, [25, 75])
-    med = float(np.median(sizes))
-    cand = [lf for lf in ok if q1 - 1e-12 <= lf.size <= q3 + 1e-12] or ok
-    scores = {lf.label: _shape_scores(lf) for lf in cand}
-    dens_med = float(np.median([s[2] for s in scores.values()])) or 1.0
-    def key(lf):
-        sym, fill, dens = scores[lf.label]
-        return (-(sym * fill * min(1.0, dens / dens_med)), abs(lf.size - med), lf.label)
-    best = min(cand, key=key)
-    log.info("fit: template leaf %d (auto: symmetry %.2f, fill %.2f, size %.3f, median %.3f)",
-             best.label, scores[best.label][0], scores[best.label][1], best.size, med)
-    return best.label
-
-
 def _chamfer_mean(a: np.ndarray, b: np.ndarray) -> float:
     """Symmetric Chamfer distance, mean of Euclidean nearest-neighbour distances both ways / 2."""
     if len(a) == 0 or len(b) == 0:
@@ -506,130 +425,6 @@ def _empty_fits(params: FitParams) -> LeafFits:
 # optimisation
 # ---------------------------------------------------------------------------------------------
 
-class _Covariances:
-    """``covs[idx]`` : (len(idx), 3, 3) float64 covariances of the Gaussians ``idx`` of a cloud
-    (working frame), computed on demand; equal to ``cloud.covariances()[idx]``."""
-
-    def __init__(self, cloud: GaussianCloud):
-        self.cloud = cloud
-
-    def __getitem__(self, idx) -> np.ndarray:
-        return self.cloud.subset(np.asarray(idx, np.int64)).covariances().astype(np.float64)
-
-
-def _subset(lf: _Leaf, n: int, covs_working: "_Covariances", opac: np.ndarray):
-    """At most n of the leaf's Gaussians (FPS), template units, leaf local frame: centres (n, 3),
-    covariances (n, 3, 3), opacities (n,). The covariances are the Gaussians' own (widening
-    them to close the gaps of the subset blurs the depth maps, and biases them where the blade
-    is tilted in the view: measured worse on the benchmark)."""
-    Q = lf.local / lf.scale
-    sel = farthest_point_sampling(Q, n, start=_start_index(Q)) if len(Q) > n else np.arange(len(Q))
-    R = lf.frame[:3, :3]
-    cov = np.einsum("ji,njk,kl->nil", R, covs_working[lf.gaussians[sel]], R) / lf.scale**2
-    pts = Q[sel]
-    return pts, cov, opac[lf.gaussians[sel]]
-
-
-def _mls_jacobian_weights(p: np.ndarray, v: np.ndarray, sigma: float, reg: float) -> np.ndarray:
-    """dA/dv : (V, K, 3) float64 by central differences of ``mls_weights`` (step 1e-4 sigma)."""
-    h = 1e-4 * sigma
-    out = np.empty((len(v), len(p), 3))
-    for a in range(3):
-        e = np.zeros(3)
-        e[a] = h
-        out[:, :, a] = (mls_weights(p, v + e, sigma, reg) - mls_weights(p, v - e, sigma, reg)) / (2 * h)
-    return out
-
-
-def _optimize(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray, means, covs, opac,
-              params: FitParams) -> np.ndarray:
-    """Adam on the target control points of ``leaves`` (B of them) at once. Returns (B, K, 3)."""
-    dt = torch.float32
-    B, K = len(leaves), len(p)
-    S = int(-(-params.image_size // 16) * 16)      # slots aligned to every tile size
-    X, Xcov, Xop = _subset(T, params.max_points, covs, opac)
-    A = torch.tensor(mls_weights(p, X, params.sigma, params.reg), dtype=dt)          # (M, K)
-    dA = torch.tensor(_mls_jacobian_weights(p, X, params.sigma, params.reg), dtype=dt)  # (M, K, 3)
-    Xcov_t = torch.tensor(Xcov, dtype=dt)
-    Xop_t = torch.tensor(Xop, dtype=dt)
-    M = len(X)
-
-    # targets: Chamfer points, depth maps, per-leaf pixel frames
-    tgt_pts, tgt_n, pix = [], [], []
-    all_m, all_c, all_o = [], [], []
-    for b, lf in enumerate(leaves):
-        Y, Ycov, Yop = _subset(lf, params.max_points, covs, opac)
-        tgt_pts.append(Y)
-        tgt_n.append(len(Y))
-        lo, hi = Y[:, :2].min(0), Y[:, :2].max(0)
-        ctr = 0.5 * (lo + hi)
-        px = max(float((hi - lo).max()) * 1.2 / S, 1e-9)   # 10 % margin each side
-        org = ctr - 0.5 * S * px                            # (xmin, ymin) of this leaf's image
-        pix.append((org, px))
-        m, c = _to_atlas(torch.tensor(Y, dtype=dt), torch.tensor(Ycov, dtype=dt), org, px, b, S)
-        all_m.append(m)
-        all_c.append(c)
-        all_o.append(torch.tensor(Yop, dtype=dt))
-    with torch.no_grad():
-        ones = torch.ones(sum(tgt_n), 1, dtype=dt)
-        tr = render_orthographic(torch.cat(all_m), torch.cat(all_c), ones, torch.cat(all_o),
-                                 B * S, S, (0.0, float(B * S), 0.0, float(S)))
-    d_tgt = tr.depth
-    fg_tgt = tr.alpha > params.fg_alpha
-    nmax = max(tgt_n)
-    Ypad = torch.zeros(B, nmax, 3, dtype=dt)
-    ymask = torch.zeros(B, nmax, dtype=dt)
-    for b, Y in enumerate(tgt_pts):
-        Ypad[b, :len(Y)] = torch.tensor(Y, dtype=dt)
-        Ypad[b, len(Y):] = torch.tensor(Y[0], dtype=dt)
-        ymask[b, :len(Y)] = 1.0
-    ycount = ymask.sum(1)
-    tgt_trees = [cKDTree(Y) for Y in tgt_pts]
-
-    orgs = torch.tensor(np.stack([o for o, _ in pix]), dtype=dt)         # (B, 2)
-    pxs = torch.tensor([s for _, s in pix], dtype=dt)                     # (B,)
-    offs = torch.arange(B, dtype=dt) * S
-
-    q = torch.tensor(q0, dtype=dt, requires_grad=True)
-    optim = Adam(q, lr=params.lr)
-    op_rep = Xop_t.repeat(B)
-    ones = torch.ones(B * M, 1, dtype=dt)
-    bounds = (0.0, float(B * S), 0.0, float(S))
-    for step in range(params.steps):
-        q.grad = None
-        Xd = torch.einsum("mk,bkc->bmc", A, q)                              # (B, M, 3)
-        J = torch.einsum("bka,mkc->bmac", q, dA)                             # (B, M, 3, 3)
-        cov_d = J @ Xcov_t[None] @ J.transpose(-1, -2)
-        # atlas (pixel) coordinates for the whole batch
-        sc = (1.0 / pxs)[:, None]
-        mx = (Xd[..., 0] - orgs[:, None, 0]) * sc + offs[:, None]
-        my = (Xd[..., 1] - orgs[:, None, 1]) * sc
-        m_atlas = torch.stack([mx, my, Xd[..., 2]], -1).reshape(-1, 3)
-        D = torch.diag_embed(torch.stack([sc.expand(B, 1)[:, 0], sc[:, 0],
-                                          torch.ones(B, dtype=dt)], -1))       # (B, 3, 3)
-        c_atlas = (D[:, None] @ cov_d @ D[:, None]).reshape(-1, 3, 3)
-        r = render_orthographic(m_atlas, c_atlas, ones, op_rep, B * S, S, bounds)
-        omega = (fg_tgt & (r.alpha > params.fg_alpha)).to(dt)
-        diff = (r.depth - d_tgt) ** 2 * omega
-        # per-leaf mean over its foreground pixels, summed over leaves
-        per_leaf_px = omega.reshape(S, B, S).sum((0, 2)).clamp_min(1.0)
-        l_depth = (diff.reshape(S, B, S).sum((0, 2)) / per_leaf_px).sum()
-        # Chamfer: nearest neighbours found exactly (kd-trees, no grad); the loss through the
-        # gathered pairs has the same value and gradient as min over all pairs
-        nn_t, nn_j = _nearest_pairs(Xd.detach().numpy(), tgt_pts, tgt_trees)
-        l_t = ((Xd - torch.gather(Ypad, 1, nn_t[..., None].expand(-1, -1, 3))) ** 2).sum(-1).mean(1)
-        l_j = (((torch.gather(Xd, 1, nn_j[..., None].expand(-1, -1, 3)) - Ypad) ** 2).sum(-1)
-               * ymask).sum(1) / ycount
-        l_cham = (l_t + l_j).sum()
-        loss = l_depth + params.lam * l_cham
-        loss.backward()
-        optim.step()
-        if not torch.isfinite(q).all():
-            break
-    return q.detach().double().numpy()
-
-
-
 def _seen_face_on(lf: _Leaf) -> bool:
     """Whether the leaf's xy view (its fit frame, along -Z) sees the blade face-on: the mean of
     its denoised normals (each turned to +Z) within ``FACE_ON_MAX_DEG`` of +Z. An arched strap
@@ -644,7 +439,7 @@ def _seen_face_on(lf: _Leaf) -> bool:
     return r > 0 and m[2] / r >= np.cos(np.radians(FACE_ON_MAX_DEG))
 
 
-def _silhouette_outline(lf: _Leaf, covs: "_Covariances", opac: np.ndarray, thr: float,
+def _silhouette_outline(lf: _Leaf, covs: "Covariances", opac: np.ndarray, thr: float,
                         means: np.ndarray, long_side: int = 256) -> np.ndarray:
     """(n, 2) the leaf's splat silhouette outline in its plane: the centres of the boundary
     pixels of the largest region (holes filled) where its kept Gaussians, rendered along the
@@ -692,133 +487,3 @@ def _silhouette_outline(lf: _Leaf, covs: "_Covariances", opac: np.ndarray, thr: 
     rim = region & ~binary_erosion(region, border_value=0)
     rr, cc = np.nonzero(rim)
     return np.stack([bounds[0] + (cc + 0.5) * px, bounds[3] - (rr + 0.5) * px], 1)
-
-
-def _refine(T: _Leaf, leaves: list[_Leaf], p: np.ndarray, q0: np.ndarray,
-            params: FitParams, outlines: list | None = None) -> np.ndarray:
-    """Gauss-Newton refinement of the target control points after Adam (ours, beyond the paper).
-
-    Why: Adam at the paper's lr for 200 steps stops short of the optimum of the objective (the
-    affine-MLS weights couple neighbouring handles, so the problem is ill-conditioned and Adam
-    converges slowly). The deformed template is linear in q (``f = A q``), so with the nearest
-    neighbours held fixed the objective is a linear least-squares problem in q, solved exactly:
-
-        E(q) = w_plane * mean_a (n_a . (A_a q - y_a))^2                      (depth term)
-             + lam * [mean_a |A_a q - y_a|^2 + mean_b |A_b' q - y_b|^2]      (Chamfer, paper Eq.)
-             + lam * w_lm * sum_l |A_l q - z_l|^2                            (landmarks)
-
-    a = every denoised template Gaussian, y_a its nearest target point, n_a the target's local
-    plane normal there (``fit.denoise``); b = every target point, b' its nearest deformed template
-    point. The depth term is L_depth without the raster: for a leaf seen along its normal (the
-    PCA-aligned view), the depth difference at a pixel is the distance between the two sheets
-    along the normal. The landmarks l are the petiole base (the local origin) and the apex of the
-    template and the target: the tip is thin and sparsely observed, so the Chamfer terms alone
-    let the deformed template fall short of it (that was the Hausdorff distance). Each iteration
-    re-pairs the neighbours (kd-trees) and solves the 3K x 3K normal equations with
-    Levenberg-Marquardt damping ``damping * mean diagonal`` towards the current q. All in template
-    units, the leaf's local frame. Returns (B, K, 3) float64.
-
-    With ``outlines`` (the template's then each leaf's silhouette outline, (n, 2) each:
-    :func:`_silhouette_outline`) the objective also has the outlines' Chamfer in the leaf plane,
-
-             + lam * outline_weight * [mean_o |(A_o q)_xy - y_o|^2 + mean_c |(A_c' q)_xy - y_c|^2]
-
-    o = the template's outline points (z of the nearest template point), c = the leaf's. Why:
-    the surface Chamfer is carried by the blade's interior, where every point has a partner
-    within half a spacing whatever the outline does; the smooth field then stops short of the
-    leaf's rim (overlap: the deformed template's centres reached 0.97-0.99 of the leaf's
-    radial extent) and does not follow a leaf whose outline differs from the template's.
-    """
-    X = T.local[sample_at_most(T.local, params.refine_points)]
-    A = mls_weights(p, X, params.sigma, params.reg)                      # (M, K)
-    K = len(p)
-    out = np.array(q0, np.float64)
-    A_lm = mls_weights(p, np.stack([np.zeros(3), T.apex]), params.sigma, params.reg)   # (2, K)
-    H_lm = params.landmark_weight * A_lm.T @ A_lm
-    H_tt = A.T @ A / len(X)                  # the template's own term: fixed for every leaf
-    w_o = params.lam * params.outline_weight
-    use_o = outlines is not None and w_o > 0 and len(outlines[0]) >= 3 and len(X)
-    if use_o:
-        BT = np.asarray(outlines[0], np.float64)
-        zt = X[cKDTree(X[:, :2]).query(BT)[1], 2]
-        A_o = mls_weights(p, np.column_stack([BT, zt]), params.sigma, params.reg)   # (n, K)
-        H_oo = A_o.T @ A_o / len(BT)
-        E_xy = np.diag([1.0, 1.0, 0.0])
-    for b, lf in enumerate(leaves):
-        g_lm = params.landmark_weight * A_lm.T @ np.stack([np.zeros(3), lf.apex / lf.scale])
-        sub = sample_at_most(lf.local, params.refine_points)
-        Y = lf.local[sub] / lf.scale
-        N = lf.normals[sub]
-        tree = cKDTree(Y)
-        q = out[b]
-        Yo = np.asarray(outlines[b + 1], np.float64) if use_o else np.zeros((0, 2))
-        tree_o = cKDTree(Yo) if len(Yo) >= 3 else None
-        for _ in range(params.refine):
-            Xd = A @ q
-            ia = tree.query(Xd)[1]
-            ib = cKDTree(Xd).query(Y)[1]
-            Ab = A[ib]
-            H_pt = H_tt + Ab.T @ Ab / len(Y) + H_lm                       # (K, K), per coordinate
-            g_pt = A.T @ Y[ia] / len(X) + Ab.T @ Y / len(Y) + g_lm        # (K, 3)
-            J = (A[:, :, None] * N[ia][:, None, :]).reshape(len(X), 3 * K)  # row a: n_a^T A_a
-            r = (N[ia] * Y[ia]).sum(1)
-            H = params.lam * np.kron(H_pt, np.eye(3)) + params.plane_weight * (J.T @ J) / len(X)
-            g = params.lam * g_pt.reshape(-1) + params.plane_weight * (J.T @ r) / len(X)
-            if tree_o is not None:
-                Xo = A_o @ q[:, :2]
-                io = tree_o.query(Xo)[1]
-                Ac = A_o[cKDTree(Xo).query(Yo)[1]]
-                H_o = H_oo + Ac.T @ Ac / len(Yo)
-                g_o = A_o.T @ Yo[io] / len(Xo) + Ac.T @ Yo / len(Yo)          # (K, 2)
-                H = H + w_o * np.kron(H_o, E_xy)
-                g = g + w_o * np.column_stack([g_o, np.zeros(K)]).reshape(-1)
-            mu = params.damping * float(np.trace(H)) / len(H)
-            q = np.linalg.solve(H + mu * np.eye(len(H)), g + mu * q.reshape(-1)).reshape(K, 3)
-        out[b] = q
-    return out
-
-
-class Adam:
-    """Adam (Kingma & Ba 2015) on one tensor, the update of ``torch.optim.Adam`` with its defaults
-    (betas 0.9/0.999, eps 1e-8, no weight decay), written out because constructing
-    ``torch.optim.Adam`` imports torch._dynamo (~2 s of CPU per process). Tested equal to it."""
-
-    def __init__(self, param, lr: float, betas=(0.9, 0.999), eps: float = 1e-8):
-        self.p, self.lr, self.b1, self.b2, self.eps = param, lr, betas[0], betas[1], eps
-        self.m = torch.zeros_like(param)
-        self.v = torch.zeros_like(param)
-        self.t = 0
-
-    @torch.no_grad()
-    def step(self) -> None:
-        g = self.p.grad
-        self.t += 1
-        self.m.mul_(self.b1).add_(g, alpha=1 - self.b1)
-        self.v.mul_(self.b2).addcmul_(g, g, value=1 - self.b2)
-        bc1 = 1 - self.b1 ** self.t
-        bc2 = 1 - self.b2 ** self.t
-        denom = (self.v.sqrt() / math.sqrt(bc2)).add_(self.eps)
-        self.p.addcdiv_(self.m, denom, value=-self.lr / bc1)
-
-
-def _nearest_pairs(X: np.ndarray, tgt_pts: list, tgt_trees: list):
-    """Nearest-neighbour indices both ways. X : (B, M, 3) deformed template points; tgt_pts[b] :
-    (n_b, 3). Returns nn_t (B, M) index into target b, nn_j (B, nmax) index into X[b] (0 for
-    padding rows)."""
-    B, M = X.shape[:2]
-    nmax = max(len(y) for y in tgt_pts)
-    nn_t = np.empty((B, M), np.int64)
-    nn_j = np.zeros((B, nmax), np.int64)
-    for b in range(B):
-        nn_t[b] = tgt_trees[b].query(X[b], k=1)[1]
-        nn_j[b, :len(tgt_pts[b])] = cKDTree(X[b]).query(tgt_pts[b], k=1)[1]
-    return torch.from_numpy(nn_t), torch.from_numpy(nn_j)
-
-
-def _to_atlas(m, c, org, px, b, S):
-    """Leaf local (template units) -> atlas pixel frame of slot b (x in [b S, (b+1) S))."""
-    sc = 1.0 / px
-    mm = torch.stack([(m[:, 0] - float(org[0])) * sc + b * S, (m[:, 1] - float(org[1])) * sc,
-                      m[:, 2]], -1)
-    D = torch.diag(torch.tensor([sc, sc, 1.0], dtype=m.dtype))
-    return mm, D @ c @ D
