@@ -2,7 +2,7 @@
 
 Converts each plant with its ground-truth labels, up axis and root (as ``benchmarks/render.py``)
 and ``-K`` control points, observing the registration's refinement (it wraps
-``fit.register._refine``; nothing is changed). Per fitted leaf, in the refinement's template
+``fit.gauss_newton.refine_targets``; nothing is changed). Per fitted leaf, in the refinement's template
 units and leaf frame:
 
 * ``out>10``: how many of the outline term's template points (the template's silhouette
@@ -80,7 +80,7 @@ def run_plant(d: Path, K: int, work: Path) -> None:
     from leaffit_usd.usd.reader import read_stage
 
     seen = {}
-    refine = register._refine
+    refine = register.refine_targets
 
     def observed(T, leaves, p, q0, params, outlines=None):
         q = refine(T, leaves, p, q0, params, outlines)
@@ -90,12 +90,12 @@ def run_plant(d: Path, K: int, work: Path) -> None:
     with np.load(d / "gt.npz") as z:
         up, root = np.asarray(z["up"], float), np.asarray(z["root"], float)
     out = work / d.name / "plant.usda"
-    register._refine = observed
+    register.refine_targets = observed
     try:
         convert(d / "point_cloud.ply", out, ConvertOptions(up=up, root=root, labels=str(d / "gt.npz"),
                                                            fit=FitParams(K=K)))
     finally:
-        register._refine = refine
+        register.refine_targets = refine
     rows = field_rows(seen) if seen else {}
     errors = {}
     if (SHARED / "eval_deform.py").is_file():
