@@ -9,6 +9,8 @@ from leaffit_usd.errors import ParameterError
 
 METHODS = ("auto", "bpa", "planar")
 UV_LAYOUTS = ("envelope", "fit", "square")
+#: the smallest texture side the texel density may choose, pixels
+MIN_TEXTURE_SIZE = 128
 
 
 @dataclass
@@ -16,8 +18,16 @@ class MeshParams:
     """Template mesh parameters.
 
     vertex_budget : maximum number of sheet vertices (FPS samples), paper: 2,048
-    texture_size : width = height of each side's baked texture in pixels (``convert --bake-size``;
-        the stage's files may be downsampled when written: ``WriteOptions.texture_max_size``)
+    texture_size : the largest width = height of each side's baked texture in pixels
+        (``convert --bake-size``; the stage's files may be downsampled when written:
+        ``WriteOptions.texture_max_size``)
+    texels_per_spacing : the texture follows the template's texel density: its side is the
+        power of two (at least ``MIN_TEXTURE_SIZE``, at most ``texture_size``) that gives this many
+        texels per spacing of the template's Gaussians (sqrt(leaf area / Gaussians)) along the
+        leaf's longer extent; 0 = always ``texture_size``. Why 2 (Nyquist): the splats cannot
+        show detail finer than their spacing, and a 100k-Gaussian plant's template (4-9k
+        Gaussians) gets 256-512 px instead of 1024 px, a quarter of the bake and of the file
+        (render fidelity: ``benchmarks/render.py``). Range [0, 16].
     method : "auto" (BPA, planar fallback), "bpa" (BPA only; still falls back when it produces
         nothing usable) or "planar"
     bpa_radii : ball radii, multiples of the samples' median nearest-neighbour spacing
@@ -49,6 +59,7 @@ class MeshParams:
 
     vertex_budget: int = 2048
     texture_size: int = 1024
+    texels_per_spacing: float = 2.0
     method: str = "auto"
     bpa_radii: tuple = (2.0, 3.0, 4.0)
     alpha: float = 2.5
@@ -75,6 +86,19 @@ class MeshParams:
                 last = n
         return tuple(out)
 
+    def texture_side(self, extent: float, area: float, n_gaussians: int) -> int:
+        """The texture's side in pixels for a template leaf of longer extent ``extent`` and area
+        ``area`` (working units, its plane) holding ``n_gaussians`` Gaussians (see
+        ``texels_per_spacing``)."""
+        top = int(self.texture_size)
+        if self.texels_per_spacing <= 0 or n_gaussians <= 0 or not (area > 0 and extent > 0):
+            return top
+        want = self.texels_per_spacing * extent / np.sqrt(area / n_gaussians)
+        side = MIN_TEXTURE_SIZE
+        while side < want and side < top:
+            side *= 2
+        return int(min(side, top))
+
     def validate(self) -> None:
         if not isinstance(self.vertex_budget, (int, np.integer)) or self.vertex_budget < 3:
             raise ParameterError("vertex_budget", "an integer >= 3", self.vertex_budget)
@@ -98,7 +122,7 @@ class MeshParams:
         if any(b >= a for a, b in zip((self.vertex_budget, *lods), lods)):
             raise ParameterError("lod_vertices", f"budgets each below the last and below the vertex "
                                  f"budget ({self.vertex_budget}): a coarser level of detail", lods)
-        for name, lo, hi in (("alpha", 0.5, 100.0), ("texture_margin", 0.0, 0.45), ("outline_grow", 0.0, 10.0),
+        for name, lo, hi in (("texels_per_spacing", 0.0, 16.0), ("alpha", 0.5, 100.0), ("texture_margin", 0.0, 0.45), ("outline_grow", 0.0, 10.0),
                              ("alpha_threshold", 0.01, 0.99), ("chart_min_width", 0.05, 1.0),
                              ("min_coverage", 0.0, 1.0)):
             v = getattr(self, name)

@@ -62,6 +62,7 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -131,7 +132,10 @@ def build_template_mesh(cloud_working, fits, params: MeshParams | None = None) -
     outer = max(loops, key=lambda lp: abs(surf.signed_area_xy(P[lp]))) if loops else np.arange(S)
 
     # UVs and textures
-    size = int(params.texture_size)
+    ring = P[outer, :2]
+    size = params.texture_side(float(np.ptp(ring, axis=0).max()) if len(ring) else 0.0,
+                               abs(surf.signed_area_xy(ring)) if len(ring) >= 3 else 0.0,
+                               len(fits.template_gaussians))
     t0 = time.perf_counter()
     if params.uv_layout == "envelope":
         chart = envelope_chart(P[outer, :2], size, params.texture_margin, params.chart_min_width)
@@ -153,7 +157,8 @@ def build_template_mesh(cloud_working, fits, params: MeshParams | None = None) -
     mesh.lods = [two_sided(*lod_sheet(rim_sheet, P, Fs, int(n), grow), chart, rot)
                  for n in params.lod_budgets()]
     timings["lods"] = time.perf_counter() - t0
-    mesh.report = quality_report(mesh, cloud_working, fits, sheet, checks, tinfo, chart, params, rot)
+    mesh.report = quality_report(mesh, cloud_working, fits, sheet, checks, tinfo, chart,
+                                 replace(params, texture_size=size), rot)
     mesh.report["lod_vertices_per_side"] = [int(S)] + [int(len(l.points) // 2) for l in mesh.lods]
     mesh.report["timings"] = {k: round(v, 4) for k, v in timings.items()}
     return mesh

@@ -247,3 +247,24 @@ def test_envelope_chart_covers_more_texels(leaf, leaf_mesh):
     flat = build_template_mesh(cloud, fits, MeshParams(vertex_budget=800, texture_size=128, uv_layout="fit"))
     env = leaf_mesh.report["alpha_coverage_front"]
     assert env > flat.report["alpha_coverage_front"] + 0.04 and env > 0.75
+
+
+def test_texture_side_follows_the_texel_density():
+    """The texture's side is the power of two giving ``texels_per_spacing`` texels per Gaussian
+    spacing along the leaf, clamped to [MIN_TEXTURE_SIZE, texture_size]; 0 = texture_size."""
+    from leaffit_usd.mesh.params import MIN_TEXTURE_SIZE, MeshParams
+
+    p = MeshParams()
+    # a 0.1 x 0.05 leaf (area 0.004): 4,000 Gaussians -> spacing 0.001 -> 200 texels -> 256
+    assert p.texture_side(0.1, 0.004, 4000) == 256
+    assert p.texture_side(0.1, 0.004, 64000) == 1024          # 800 texels -> 1024 (the cap)
+    assert p.texture_side(0.1, 0.004, 16000) == 512
+    assert p.texture_side(0.1, 0.004, 40) == MIN_TEXTURE_SIZE  # sparse: the floor
+    assert MeshParams(texture_size=2048).texture_side(0.1, 0.004, 256000) == 2048
+    assert MeshParams(texels_per_spacing=0).texture_side(0.1, 0.004, 40) == 1024
+    assert p.texture_side(0.0, 0.0, 0) == 1024
+    import pytest
+
+    from leaffit_usd.errors import ParameterError
+    with pytest.raises(ParameterError):
+        MeshParams(texels_per_spacing=-1.0).validate()
