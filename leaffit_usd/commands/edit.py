@@ -139,14 +139,24 @@ def doubtful_lines(session) -> list[str]:
             f"lowest: leaf {low['label']}, {low['confidence']:.2f})"]
 
 
+_PRINT_LOCK = threading.Lock()
+
+
+def _say(line: str) -> None:
+    """Print one line to the terminal; the session builder prints too, and a TextIOWrapper
+    written by two threads at once can break (its buffer then fails at exit)."""
+    with _PRINT_LOCK:
+        print(line, flush=True)
+
+
 def _interrupt(*_):
     raise KeyboardInterrupt
 
 
 def run(args) -> int:
-    from leaffit_usd.errors import ParameterError
-    from leaffit_usd.segment.edits import load_edits, to_cloud_operations
-    from leaffit_usd.viewer.server import ViewerServer, build_session
+    from leaffit_usd.errors import ParameterError, UserError
+    from leaffit_usd.segment.edits import load_edits
+    from leaffit_usd.viewer.server import ViewerServer, ViewerSession
 
     if not 0 <= args.port <= 65535:
         raise ParameterError("--port", "a port number in [0, 65535]", args.port)
@@ -155,44 +165,26 @@ def run(args) -> int:
     if args.labels and args.empty:
         raise ParameterError("--empty", "not together with --labels", True)
     inp = Path(args.input)
+    edits = load_edits(args.edits, inp) if args.edits else None   # refused before anything slow
     prep = prepare_capture(inp, args.up, args.root, args.root_index, args.keep_scene, args.crop)
     cloud = prep.plant   # the plant as convert isolates it (file_index: each Gaussian's identity)
-    frame, conf = prep.frame, None
-    if args.labels:
-        labels, root, conf = read_labels_file(args.labels, cloud)
-    elif args.empty:
-        labels, root = np.zeros(len(cloud), np.int32), prep.root_index
-        log.info("edit: starting with every Gaussian unassigned")
-    else:
-        log.info("edit: automatic segmentation (as convert does; --empty to skip, --labels to reuse one)")
-        labels, root, frame, conf = automatic_labels(prep)
-    edits = load_edits(args.edits, inp) if args.edits else None
+    given = read_labels_file(args.labels, cloud) if args.labels else None
     stem = inp.name.rsplit(".", 1)[0]
     edits_out = Path(args.edits_out) if args.edits_out else inp.with_name(stem + ".edits.json")
     labels_out = Path(args.labels_out) if args.labels_out else inp.with_name(stem + ".labels.npz")
-    session = build_session(cloud, labels, inp, edits_out, labels_out, root_index=root,
-                            height=edits.height if edits else (frame.height if frame else None),
-                            up=frame.up if frame else None,
-                            n_samples=edits.n_samples if edits else args.samples,
-                            min_opacity=args.min_opacity, confidence=conf)
-    if edits is not None:
-        session.segmenter.replay(to_cloud_operations(edits.operations, cloud))
-        session.saved_ops = list(session.segmenter.operations)
-        log.info("edit: replayed %d operations from %s", len(edits.operations), args.edits)
+    # the page draws the capture at once; the segmentation and the geodesics follow
+    session = ViewerSession.starting(cloud, edits.height if edits else prep.frame.height, edits_out,
+                                     labels_out, up=prep.frame.up, input_name=inp.name,
+                                     frame=prep.frame, phase="segmenting")
     server = ViewerServer(session, port=args.port)
-    # the handlers go in before the URL is printed: whoever reads the URL may send Ctrl-C at once
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        previous[signal.SIGTERM] = signal.signal(signal.SIGTERM, _interrupt)  # stop as on Ctrl-C
-        # Ctrl-C stops the server even when the process started with SIGINT ignored (launched
-        # in the background by a script, or under a test runner that was): Python then
-        # installs no handler of its own and the server could only be killed
-        previous[signal.SIGINT] = signal.signal(signal.SIGINT, signal.default_int_handler)
+    failure = []
+    builder = threading.Thread(target=_build_session, daemon=True,
+                               args=(session, prep, args, given, edits, server, failure))
+    previous = _install_stop_handlers()  # before the URL: whoever reads it may send Ctrl-C at once
     try:
-        print(f"leaffit-usd edit: open {server.url}", flush=True)
-        print("  (local only; the token in the URL is required; Ctrl-C to stop)", flush=True)
-        for line in doubtful_lines(session):
-            print(line, flush=True)
+        _say(f"leaffit-usd edit: open {server.url}")
+        _say("  (local only; the token in the URL is required; Ctrl-C to stop)")
+        builder.start()
         if not args.no_browser:
             _open_browser(server.url)
         server.serve_forever()
@@ -201,7 +193,68 @@ def run(args) -> int:
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
-    if session.segmenter.operations != session.saved_ops:
+    if failure:
+        if isinstance(failure[0], UserError):
+            raise failure[0]
+        raise RuntimeError("edit: starting the session failed") from failure[0]
+    if session.ready and session.segmenter.operations != session.saved_ops:
         log.warning("edit: stopped with %d unsaved operations", len(session.segmenter.operations))
-    print("leaffit-usd edit: stopped", flush=True)
+    _say("leaffit-usd edit: stopped")
+    if builder.is_alive():
+        # stopped while still starting (segmenting, or choosing the preview's template): a thread
+        # deep in numpy / torch cannot be interrupted, and finalising the interpreter under it
+        # breaks the standard streams; nothing is left to write (Save is atomic), so leave now
+        sys.stderr.flush()
+        os._exit(0)
     return 0
+
+
+def _install_stop_handlers() -> dict:
+    """SIGTERM stops as Ctrl-C does, and Ctrl-C works even when the process started with SIGINT
+    ignored (launched in the background by a script, or under a test runner that was): Python
+    then installs no handler of its own and the server could only be killed. Returns the
+    previous handlers (none off the main thread)."""
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        previous[signal.SIGTERM] = signal.signal(signal.SIGTERM, _interrupt)
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, signal.default_int_handler)
+    return previous
+
+
+def _build_session(session, prep, args, given, edits, server, failure: list) -> None:
+    """The slow half of starting, behind the served page: the starting labels (``given`` =
+    (labels, root, confidence) from --labels, --empty, or convert's automatic segmentation), the
+    geodesics and BVH, the replayed --edits; then ``session`` is ready. A failure is put in
+    ``failure`` and stops the server (``run`` raises it: a user error exits 2 with one line)."""
+    from leaffit_usd.segment.edits import to_cloud_operations
+    from leaffit_usd.viewer.server import build_session
+
+    try:
+        cloud, frame, conf = prep.plant, prep.frame, None
+        if given is not None:
+            labels, root, conf = given
+        elif args.empty:
+            labels, root = np.zeros(len(cloud), np.int32), prep.root_index
+            log.info("edit: starting with every Gaussian unassigned")
+        else:
+            log.info("edit: automatic segmentation (as convert does; --empty to skip, --labels to reuse one)")
+            labels, root, frame, conf = automatic_labels(prep)
+        session.phase = "geodesics"
+        built = build_session(cloud, labels, Path(args.input), session.edits_out, session.labels_out,
+                              root_index=root, height=session.height, up=frame.up,
+                              n_samples=edits.n_samples if edits else args.samples,
+                              min_opacity=args.min_opacity, confidence=conf, frame=frame)
+        if edits is not None:
+            session.phase = "replaying edits"
+            built.segmenter.replay(to_cloud_operations(edits.operations, cloud))
+            built.saved_ops = list(built.segmenter.operations)
+            log.info("edit: replayed %d operations from %s", len(edits.operations), args.edits)
+        session.attach(built)
+        log.info("edit: ready")
+        for line in doubtful_lines(session):
+            _say(line)
+        session.warm_preview()  # the template of the fitted-leaf preview, behind the ready page
+    except Exception as e:  # noqa: BLE001 - handed to run(), which raises it in the main thread
+        session.failed = str(e)
+        failure.append(e)
+        server.stop_soon()

@@ -20,11 +20,18 @@ API (all under ``/<token>/``; JSON unless said otherwise):
                             uint8 (N, 3) RGB colours
 * ``GET  api/state``        labels (base64 int32 LE), selection (base64 packbits), leaves (each with
                             its ``confidence`` and ``doubtful`` flag), ``least_confident``, undo/redo
+* ``GET  api/splats``       binary: the Gaussians to draw as splats (:meth:`ViewerSession.splats_bytes`)
+* ``POST api/leaf``         ``{label}`` -> the fitted leaf of that instance (display frame, see
+                            :meth:`ViewerSession.leaf_preview`)
 * ``POST api/pick``         ``{origin: [3], direction: [3]}`` (display frame) -> ``{index, t}``
 * ``POST api/preview``      ``{op}`` -> selection the op would give (not recorded)
 * ``POST api/op``           ``{op}`` -> apply and record; returns the state
 * ``POST api/undo|redo``    -> state;  ``POST api/save`` -> written file names
 * ``POST api/stop``         stop the server (the page's Quit button)
+
+While the session is starting (:meth:`ViewerSession.starting`: the segmentation and geodesics
+are built after the server is up, so a large capture is drawn at once), ``api/state`` answers
+``{ready: false, phase}`` and every POST but ``stop`` answers 503.
 
 Confidence: the segmentation the session starts from may give a confidence per leaf (the
 automatic one does; a labels file may carry a ``confidence`` array). A leaf of the current labels
@@ -82,33 +89,70 @@ class ViewerSession:
     """Everything the server serves and edits: one cloud, its segmenter, its BVH, output paths.
 
     cloud : GaussianCloud, input frame (as loaded)
-    segmenter : ManualSegmenter on ``cloud.means`` (cloud order)
-    bvh : GaussianBVH on the cloud (input frame)
-    edits_template : Edits with the input hash, height, samples and base labels filled in
+    height : plant height, input units (the display frame's unit)
+    segmenter : ManualSegmenter on ``cloud.means`` (cloud order), or None while starting
+    bvh : GaussianBVH on the cloud (input frame), or None while starting
+    edits_template : Edits with the input hash, height, samples and base labels filled in (None
+        while starting)
     edits_out, labels_out : where Save writes (fixed at start; never from a request)
     root_index : root Gaussian (cloud order) to carry into the labels file, or None
     up : (3,) unit up axis, input frame (for the camera)
     confidence : (L0,) float64 in [0, 1] or None, confidence of each STARTING leaf (label l+1 of
         the labels the session started from at index l); see :func:`carried_confidence`
+    frame : the plant's input <-> working ``Frame`` (the leaf preview fits in the working frame;
+        None: ``splats.frame.make_frame`` on the cloud when a preview is first asked for)
+    phase : "ready", or what is being prepared (the page shows the capture meanwhile; every
+        editing route answers 503 until ready); failed : why starting failed, or None
+
+    A session is built at once by :func:`build_session`, or in the background: the server starts
+    on :meth:`starting` (the capture is drawn at once) and :meth:`attach` hands it the built one.
     """
 
     cloud: object
-    segmenter: object
-    bvh: object
-    edits_template: object
+    height: float
     edits_out: Path
     labels_out: Path
+    segmenter: object = None
+    bvh: object = None
+    edits_template: object = None
     root_index: int | None = None
     up: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
     input_name: str = ""
     saved_ops: list = field(default_factory=list)  # operations at the last save (for "dirty")
     confidence: np.ndarray | None = None
+    frame: object = None
+    phase: str = "ready"
+    failed: str | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def __post_init__(self):
         m = np.asarray(self.cloud.means, np.float64)
         self.centre = (m.min(0) + m.max(0)) / 2 if len(m) else np.zeros(3)
-        self.height = float(self.edits_template.height)
+        self.height = float(self.height)
+        self._splats = None
+        self._previewer = None
+        self._preview_lock = threading.Lock()
+
+    @classmethod
+    def starting(cls, cloud, height: float, edits_out, labels_out, up=None, input_name: str = "",
+                 frame=None, phase: str = "starting") -> "ViewerSession":
+        """A session that serves ``cloud`` (drawn at once) while the rest is built elsewhere."""
+        return cls(cloud=cloud, height=height, edits_out=Path(edits_out), labels_out=Path(labels_out),
+                   up=np.asarray([0.0, 0.0, 1.0] if up is None else up, np.float64),
+                   input_name=input_name, frame=frame, phase=phase)
+
+    @property
+    def ready(self) -> bool:
+        return self.phase == "ready" and self.segmenter is not None
+
+    def attach(self, built: "ViewerSession") -> None:
+        """Take the segmenter, BVH and the rest from ``built`` (same cloud and height); ready."""
+        if built.cloud is not self.cloud or built.height != self.height:
+            raise ValueError("attach: the built session is of another cloud or height")
+        with self.lock:
+            for name in ("segmenter", "bvh", "edits_template", "root_index", "confidence", "saved_ops"):
+                setattr(self, name, getattr(built, name))
+            self.phase = "ready"
 
     # ---- payloads --------------------------------------------------------------------------
     def meta(self) -> dict:
@@ -118,9 +162,80 @@ class ViewerSession:
             "n": len(self.cloud), "input": self.input_name, "height": self.height,
             "up": [float(v) for v in self.up], "edits_out": self.edits_out.name,
             "labels_out": self.labels_out.name, "brush_radius": 0.05,
-            "operations": list(OPERATIONS), "samples": int(len(self.segmenter.geodesics.samples)),
-            "doubtful_below": DOUBTFUL_CONFIDENCE,
+            "operations": list(OPERATIONS),
+            "samples": int(len(self.segmenter.geodesics.samples)) if self.segmenter else None,
+            "doubtful_below": DOUBTFUL_CONFIDENCE, "ready": self.ready, "phase": self.phase,
         }
+
+    def splats_bytes(self) -> bytes:
+        """The splats for the page, 26 bytes a Gaussian (little-endian, cloud order, N = len(cloud)):
+
+        positions (N, 3) float32, display frame | scales (N, 3) float16, display units (standard
+        deviations along the Gaussian's axes) | rotations (N, 4) int8, unit quaternion (w, x, y, z)
+        x 127, rounded | colours (N, 4) uint8: RGB (the DC colour) and opacity x 255, rounded.
+        Float16 scales are within 0.05% of the float32 values, the int8 quaternions within 0.5
+        degrees of the rotation, colours at 8 bits as the page draws them: nothing a screen shows
+        (``tests/viewer/test_splats.py`` bounds the projected ellipses' error). Computed once.
+        """
+        if self._splats is None:
+            c = self.cloud
+            pos = ((np.asarray(c.means, np.float64) - self.centre) / self.height).astype("<f4")
+            scales = (np.asarray(c.scales, np.float64) / self.height).astype("<f2")
+            rot = np.clip(np.round(np.asarray(c.rotations, np.float64) * 127), -127, 127).astype(np.int8)
+            rgba = np.round(np.c_[c.colors, c.opacities] * 255).astype(np.uint8)
+            self._splats = pos.tobytes() + scales.tobytes() + rot.tobytes() + rgba.tobytes()
+        return self._splats
+
+    def leaf_preview(self, label: int) -> dict:
+        """The fitted leaf of instance ``label`` (current labels), display frame, as JSON-ready
+        data: ``{label, vertices (base64 float32 (V, 3)), faces (base64 uint32 (F, 3)), edges
+        (base64 uint32 (E, 2)), fallback, error, ms}``; ``{label, none: why}`` when there is no
+        fit to show. See :mod:`leaffit_usd.viewer.leaf_preview` (the fast path used)."""
+        with self.lock:
+            members = np.flatnonzero(self.segmenter.labels == int(label))
+        t0 = time.perf_counter()
+        if self._previewer is None:
+            self.warm_preview()
+        with self._preview_lock:   # one fit at a time; edits go on meanwhile
+            try:
+                m = self._previewer.preview(int(label), members)
+            except LookupError as e:
+                return {"label": int(label), "none": str(e)}
+        b64 = lambda a: base64.b64encode(np.ascontiguousarray(a).tobytes()).decode()  # noqa: E731
+        return {"label": m.label, "vertices": b64(m.vertices.astype("<f4")),
+                "faces": b64(m.faces.astype("<u4")), "edges": b64(m.edges.astype("<u4")),
+                "fallback": m.fallback, "error": m.error, "ms": (time.perf_counter() - t0) * 1e3}
+
+    def warm_preview(self) -> None:
+        """Choose the preview's template now (the first preview then costs one fit only); a
+        plant with no leaf has none (nothing to do)."""
+        with self._preview_lock:
+            if self._previewer is None:
+                from leaffit_usd.viewer.leaf_preview import LeafPreviewer
+
+                self._previewer = LeafPreviewer(self._working(), self.segmenter.initial.labels,
+                                                self._working_to_display())
+            try:
+                self._previewer.choose_template()
+            except LookupError:
+                pass
+
+    def _working(self):
+        """The session's cloud in the working frame (same order)."""
+        from leaffit_usd.splats.transform import transform_cloud
+
+        if self.frame is None:
+            from leaffit_usd.splats.frame import make_frame
+
+            self.frame = make_frame(self.cloud, up=self.up).frame
+        return transform_cloud(self.cloud, self.frame.input_to_working)
+
+    def _working_to_display(self) -> np.ndarray:
+        """(4, 4) float64, working frame -> display frame."""
+        d = np.eye(4)
+        d[:3, :3] /= self.height
+        d[:3, 3] = -self.centre / self.height
+        return d @ self.frame.working_to_input
 
     def points_bytes(self) -> bytes:
         pos = ((np.asarray(self.cloud.means, np.float64) - self.centre) / self.height).astype("<f4")
@@ -145,6 +260,10 @@ class ViewerSession:
         return rows, int(counts[0])
 
     def state(self) -> dict:
+        """The editing state (see the module docstring); ``{ready: False, phase, failed}`` while
+        the session is still starting."""
+        if not self.ready:
+            return {"ready": False, "phase": self.phase, "failed": self.failed}
         seg = self.segmenter
         labels = seg.labels
         leaves, stem = self.leaves()
@@ -153,7 +272,7 @@ class ViewerSession:
             "selection": _pack(seg.selection), "selected": int(seg.selection.sum()),
             "leaves": leaves, "stem": stem, "least_confident": least_confident(leaves),
             "can_undo": seg.can_undo, "can_redo": seg.can_redo, "n_ops": len(seg.operations),
-            "dirty": seg.operations != self.saved_ops,
+            "dirty": seg.operations != self.saved_ops, "ready": True,
         }
 
     # ---- actions ---------------------------------------------------------------------------
@@ -311,6 +430,10 @@ def _add_read_routes(app, session: ViewerSession, base: str) -> None:
     def points():
         return Response(session.points_bytes(), mimetype="application/octet-stream")
 
+    @app.get(base + "/api/splats")
+    def splats():
+        return Response(session.splats_bytes(), mimetype="application/octet-stream")
+
     @app.get(base + "/api/state")
     def state():
         with session.lock:
@@ -318,8 +441,22 @@ def _add_read_routes(app, session: ViewerSession, base: str) -> None:
 
 
 def _add_edit_routes(app, session: ViewerSession, base: str, max_body: int, on_stop) -> None:
-    """Picking, previews, operations, undo / redo, save, stop."""
-    from flask import abort, jsonify
+    """Picking, previews, operations, undo / redo, save, stop (503 until the session is ready)."""
+    from flask import abort, jsonify, request
+
+    @app.before_request
+    def _ready():
+        if request.method == "POST" and not request.path.endswith("/api/stop") and not session.ready:
+            return jsonify(error=session.failed or f"still starting: {session.phase}"), 503
+        return None
+
+    @app.post(base + "/api/leaf")
+    def leaf():
+        data = _json_body(max_body)
+        label = data.get("label")
+        if isinstance(label, bool) or not isinstance(label, int) or label < 1:
+            abort(400, "expected {label: a leaf label >= 1}")
+        return jsonify(session.leaf_preview(label))
 
     @app.post(base + "/api/pick")
     def pick():
@@ -384,6 +521,8 @@ STATIC_FILES = {
     "app.js": "text/javascript",
     "style.css": "text/css",
     "three.bundle.min.js": "text/javascript",
+    "splats.js": "text/javascript",
+    "sort-worker.js": "text/javascript",
 }
 
 
@@ -421,6 +560,10 @@ class ViewerServer:
         self._thread.start()
         return self
 
+    def stop_soon(self) -> None:
+        """Stop from any thread without waiting (``stop`` from a request would wait for itself)."""
+        threading.Thread(target=self._server.shutdown, daemon=True).start()
+
     def stop(self) -> None:
         self._server.shutdown()
         if self._thread is not None:
@@ -429,7 +572,7 @@ class ViewerServer:
 
 def build_session(cloud, labels, input_path, edits_out, labels_out, root_index=None,
                   height=None, n_samples=None, solver_factory=None, min_opacity: float = 0.0,
-                  normals: str | None = "smallest-axis", up=None, confidence=None):
+                  normals: str | None = "smallest-axis", up=None, confidence=None, frame=None):
     """Make a :class:`ViewerSession` for ``cloud`` (input frame) starting from ``labels`` (cloud order).
 
     input_path : the input file (hashed into the edits); height : plant height in input units
@@ -437,7 +580,8 @@ def build_session(cloud, labels, input_path, edits_out, labels_out, root_index=N
     are not pickable (floaters); normals : "smallest-axis" for orientation-aware geodesics, or None;
     up : (3,) plant up axis, input frame (default: from :func:`plant_frame`, with the height);
     confidence : (L,) float in [0, 1] per starting leaf (label l+1 at index l), or None. An array
-    of another length, or with values outside [0, 1], is a ParameterError.
+    of another length, or with values outside [0, 1], is a ParameterError. frame : the plant's
+    ``Frame`` (input <-> working), for the leaf preview, or None (estimated when first needed).
     """
     from leaffit_usd.errors import ParameterError
     from leaffit_usd.io_util import file_sha256
@@ -473,8 +617,8 @@ def build_session(cloud, labels, input_path, edits_out, labels_out, root_index=N
     t2 = time.perf_counter()
     log.info("edit: geodesics on %d samples in %.2f s, BVH over %d Gaussians in %.2f s",
              len(seg.geodesics.samples), t1 - t0, bvh.n_pickable, t2 - t1)
-    return ViewerSession(cloud=cloud, segmenter=seg, bvh=bvh, edits_template=template,
+    return ViewerSession(cloud=cloud, height=height, segmenter=seg, bvh=bvh, edits_template=template,
                          edits_out=Path(edits_out), labels_out=Path(labels_out),
                          root_index=root_index, up=up, input_name=Path(input_path).name,
-                         confidence=confidence)
+                         confidence=confidence, frame=frame)
 

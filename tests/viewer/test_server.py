@@ -166,8 +166,12 @@ def test_cli_continues_a_session_prints_url_and_stops_cleanly_on_ctrl_c(served, 
                 break
         assert "http://127.0.0.1:" in line, p.stderr.read()
         url = line.split("open ", 1)[1].strip()
-        with urllib.request.urlopen(url + "api/state", timeout=10) as r:
-            st = json.loads(r.read())
+        st = {"ready": False}
+        while not st["ready"] and time.time() < deadline:  # the page is served while it starts
+            with urllib.request.urlopen(url + "api/state", timeout=10) as r:
+                st = json.loads(r.read())
+            assert st["ready"] or st["phase"] in ("segmenting", "geodesics", "replaying edits"), st
+            time.sleep(0.05)
         assert st["n_ops"] == 2 and len(st["leaves"]) == 1 and st["can_undo"] and not st["dirty"]
         p.send_signal(signal.SIGINT)
         out, err = p.communicate(timeout=20)
@@ -392,3 +396,46 @@ def test_cli_prints_doubtful_leaves_and_serves_them(served, plant, tmp_path):
     finally:
         if p.poll() is None:
             p.kill()
+
+
+def test_starting_session_serves_the_capture_and_refuses_edits(served):
+    """While a session starts, the page gets the capture (meta, splats) and the phase; editing
+    routes answer 503; once the built session is attached, they work."""
+    from leaffit_usd.viewer.server import ViewerSession
+
+    built = served[0]
+    s = ViewerSession.starting(built.cloud, built.height, built.edits_out, built.labels_out,
+                               up=built.up, input_name="plant.ply", phase="geodesics")
+    app = create_app(s, TOKEN)
+    app.testing = True
+    c = app.test_client()
+    meta = c.get(f"/{TOKEN}/api/meta").get_json()
+    assert meta["ready"] is False and meta["phase"] == "geodesics" and meta["samples"] is None
+    assert len(c.get(f"/{TOKEN}/api/splats").data) == 26 * len(built.cloud)
+    assert c.get(f"/{TOKEN}/api/state").get_json() == {"ready": False, "phase": "geodesics", "failed": None}
+    for route in ("op", "pick", "preview", "undo", "save", "leaf"):
+        r = c.post(f"/{TOKEN}/api/{route}", json={"op": {"op": "clear"}})
+        assert r.status_code == 503 and "still starting: geodesics" in r.get_json()["error"], route
+    with pytest.raises(ValueError):
+        s.attach(ViewerSession.starting(built.cloud, built.height + 1, "a", "b"))
+    s.attach(built)
+    assert c.get(f"/{TOKEN}/api/state").get_json()["ready"] is True
+    assert c.post(f"/{TOKEN}/api/op", json={"op": {"op": "clear"}}).status_code == 200
+    built.segmenter.undo()
+
+
+def test_cli_edits_that_fail_to_replay_exit_2(served, tmp_path):
+    """An --edits file whose operations cannot be replayed (a split across two leaves) is found
+    while starting, behind the served page: the server stops and edit exits 2 with one line."""
+    from leaffit_usd.io_util import file_sha256
+    from leaffit_usd.segment.edits import Edits, save_edits
+
+    d = served[1]
+    n = len(served[0].cloud)
+    save_edits(Edits(input_sha256=file_sha256(d / "plant.ply"), n_gaussians=n, height=1.0, n_samples=500,
+                     operations=[{"op": "split_at", "seeds": [0, n - 1]}]), tmp_path / "bad.json")
+    r = subprocess.run([sys.executable, "-m", "leaffit_usd", "edit", str(d / "plant.ply"), "--no-browser",
+                        "--empty", "--edits", str(tmp_path / "bad.json")], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 2, r.stderr
+    assert "split_at" in r.stderr and "Traceback" not in r.stderr

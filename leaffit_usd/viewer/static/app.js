@@ -1,7 +1,9 @@
 // leaffit-usd edit — the page. Talks only to its own server (relative URLs keep the token).
-// Picking and geodesic selections run server-side (BVH + heat geodesics); the page draws points,
-// sends rays, and shows the selection the server returns.
+// Picking and geodesic selections run server-side (BVH + heat geodesics); the page draws the
+// capture as sorted, alpha-blended splats (splats.js; dots as an option), sends rays, shows the
+// selection the server returns and the fitted leaf of the checked instance (api/leaf).
 import * as THREE from './three.bundle.min.js';
+import { OverlayRenderer, SplatRenderer, parseSplats } from './splats.js';
 
 const $ = (id) => document.getElementById(id);
 const statusEl = $('status');
@@ -32,6 +34,7 @@ const S = {
   n: 0, meta: null, positions: null, rgb: null,
   labels: null, selBits: null, previewBits: null, leaves: [], stemCount: 0,
   tool: 'brush', busy: false, gesture: null, lastPickMs: 0, lastUpdateMs: 0, ready: false,
+  drawn: false, firstFrameMs: null, splitSeed: null, preview: null, previewSeq: 0, opSeq: 0,
 };
 
 function selected(i, bits) {
@@ -50,26 +53,71 @@ function leafColor(label) {
 
 // ---- scene ------------------------------------------------------------------------------
 const view = $('view');
-const renderer = new THREE.WebGLRenderer({ antialias: false, preserveDrawingBuffer: true });
+const renderer = new THREE.WebGLRenderer({ antialias: false, preserveDrawingBuffer: true, alpha: false });
 renderer.setPixelRatio(window.devicePixelRatio || 1);
+renderer.autoClear = false;
+renderer.setClearColor(0x1d1f21, 1);
 view.appendChild(renderer.domElement);
+const gl = renderer.getContext();
+const splats = new SplatRenderer(gl);
+const overlay = new OverlayRenderer(gl);
 const scene = new THREE.Scene();
-scene.background = new THREE.Color(0x1d1f21);
 const camera = new THREE.PerspectiveCamera(40, 1, 0.005, 50);
 const controls = new THREE.OrbitControls(camera, renderer.domElement);
 controls.enableDamping = false;
 const geometry = new THREE.BufferGeometry();
 const material = new THREE.PointsMaterial({ size: 0.006, vertexColors: true, sizeAttenuation: true });
 const points = new THREE.Points(geometry, material);
+points.visible = false;
 scene.add(points);
+const dotsMode = () => $('dots').checked;
+
+// back-to-front order from the worker; a new sort is asked for whenever the view has changed
+const sorter = new Worker(new URL('./sort-worker.js', import.meta.url));
+const sortState = { busy: false, stale: false, id: 0 };
+function requestSort() {
+  if (!S.n || dotsMode()) return;
+  if (sortState.busy) { sortState.stale = true; return; }
+  sortState.busy = true;
+  sortState.stale = false;
+  camera.updateMatrixWorld();
+  sorter.postMessage({ id: ++sortState.id, view: Float32Array.from(camera.matrixWorldInverse.elements) });
+}
+sorter.onmessage = (e) => {
+  splats.setOrder(e.data.order);
+  sortState.busy = false;
+  if (sortState.stale) requestSort();
+  render();
+};
+
+function drawFrame() {
+  camera.updateMatrixWorld();
+  const size = renderer.getDrawingBufferSize(new THREE.Vector2());
+  renderer.setRenderTarget(null);
+  renderer.clear();
+  if (!dotsMode()) {
+    renderer.resetState();
+    splats.draw(camera, size.x, size.y);
+  }
+  renderer.resetState();
+  points.visible = dotsMode();
+  renderer.render(scene, camera);
+  renderer.resetState();
+  overlay.draw(camera, size.x, size.y);
+  renderer.resetState();
+  if (S.n && (dotsMode() || splats.hasOrder) && S.firstFrameMs === null) {
+    S.firstFrameMs = performance.now();  // ms since the page started loading
+    S.drawn = true;
+  }
+}
 
 let renderQueued = false;
 function render() {
   if (renderQueued) return;
   renderQueued = true;
-  requestAnimationFrame(() => { renderQueued = false; renderer.render(scene, camera); });
+  requestAnimationFrame(() => { renderQueued = false; drawFrame(); });
 }
-controls.addEventListener('change', render);
+controls.addEventListener('change', () => { requestSort(); render(); });
 
 function resize() {
   const w = view.clientWidth || 1, h = view.clientHeight || 1;
@@ -82,6 +130,7 @@ new ResizeObserver(resize).observe(view);
 
 function setTool(tool) {
   S.tool = tool;
+  if (tool !== 'split' && S.splitSeed !== null) { S.splitSeed = null; markSeed(null); }
   if (tool === 'orbit') {
     controls.mouseButtons = { LEFT: THREE.MOUSE.ROTATE, MIDDLE: THREE.MOUSE.DOLLY, RIGHT: THREE.MOUSE.PAN };
   } else {
@@ -90,27 +139,36 @@ function setTool(tool) {
   renderer.domElement.style.cursor = tool === 'orbit' ? 'grab' : 'crosshair';
 }
 
+const TINT = 0.55;  // how much of the label colour replaces a splat's own (tint on)
+
 function recolor() {
-  if (!S.labels) return;
-  const col = geometry.getAttribute('color');
-  const a = col.array;
-  const rgbMode = $('rgb').checked;
+  // tint per Gaussian (RGBA8: label colour, its weight): the selection in yellow, leaves in their
+  // colour, the stem darkened; with the tint off only the selection is marked
+  if (!S.n) return;
+  const tint = new Uint8Array(4 * S.n);
+  const tinted = $('tint').checked && S.labels;
   const bits = S.previewBits || S.selBits;
   const cache = new Map();
+  const w = Math.round(255 * TINT);
   for (let i = 0; i < S.n; i++) {
-    const o = 3 * i;
-    if (bits && selected(i, bits)) { a[o] = 1.0; a[o + 1] = 0.86; a[o + 2] = 0.1; continue; }
+    const o = 4 * i;
+    if (bits && selected(i, bits)) { tint[o] = 255; tint[o + 1] = 219; tint[o + 2] = 26; tint[o + 3] = 230; continue; }
+    if (!tinted) continue;
     const lab = S.labels[i];
-    if (rgbMode || lab === 0) {
-      const k = rgbMode ? 1.0 : 0.45;
-      a[o] = k * S.rgb[o] / 255; a[o + 1] = k * S.rgb[o + 1] / 255; a[o + 2] = k * S.rgb[o + 2] / 255;
-      continue;
-    }
+    if (lab === 0) { tint[o + 3] = w; continue; }  // black at 55%: the stem, darkened
     let c = cache.get(lab);
-    if (!c) { c = leafColor(lab); cache.set(lab, c); }
-    a[o] = c.r; a[o + 1] = c.g; a[o + 2] = c.b;
+    if (!c) { c = leafColor(lab); cache.set(lab, [255 * c.r, 255 * c.g, 255 * c.b]); c = cache.get(lab); }
+    tint[o] = c[0]; tint[o + 1] = c[1]; tint[o + 2] = c[2]; tint[o + 3] = w;
   }
-  col.needsUpdate = true;
+  splats.setTint(tint);
+  if (dotsMode()) {
+    const a = geometry.getAttribute('color').array;
+    for (let i = 0; i < S.n; i++) {
+      const t = tint[4 * i + 3] / 255;
+      for (let k = 0; k < 3; k++) a[3 * i + k] = ((1 - t) * S.rgba[4 * i + k] + t * tint[4 * i + k]) / 255;
+    }
+    geometry.getAttribute('color').needsUpdate = true;
+  }
   render();
 }
 
@@ -129,6 +187,38 @@ function applyState(st) {
   $('next-doubtful').disabled = !doubtfulLeaves().length;
   renderLeafList();
   recolor();
+  S.opSeq = st.n_ops;
+  updatePreview();
+}
+
+// ---- the fitted leaf of the checked instance ----------------------------------------------
+// The server fits the template to the checked leaf (fast path, see viewer/leaf_preview.py) and
+// returns the deformed sheet, display frame; it is drawn over the splats as a translucent
+// sheet with its grid lines. Asked for again after every edit (cached server-side by the leaf's
+// Gaussians, so an edit elsewhere costs nothing).
+async function updatePreview() {
+  const ch = checkedLeaves();
+  const want = $('fit').checked && S.ready && ch.length === 1 ? ch[0] : null;
+  const seq = ++S.previewSeq;
+  if (want === null) { overlay.remove('leaf-fill'); overlay.remove('leaf-grid'); S.preview = null; render(); return; }
+  const t0 = performance.now();
+  let res;
+  try { res = await api('leaf', { label: want }); } catch (e) { setStatus(String(e.message || e), true); return; }
+  if (seq !== S.previewSeq) return;  // a newer request is on its way
+  if (res.none) {
+    overlay.remove('leaf-fill'); overlay.remove('leaf-grid');
+    S.preview = { label: want, none: res.none, ops: S.opSeq, ms: performance.now() - t0 };
+    status(res.none);
+    render();
+    return;
+  }
+  const v = new Float32Array(b64bytes(res.vertices).buffer);
+  overlay.set('leaf-fill', v, new Uint32Array(b64bytes(res.faces).buffer), 'TRIANGLES', [0.35, 0.85, 1.0, 0.18]);
+  overlay.set('leaf-grid', v, new Uint32Array(b64bytes(res.edges).buffer), 'LINES', [0.55, 0.95, 1.0, 0.85]);
+  S.preview = { label: want, vertices: v.length / 3, ops: S.opSeq, ms: performance.now() - t0,
+    serverMs: res.ms, fallback: res.fallback, error: res.error };
+  status();
+  render();
 }
 
 // ---- confidence ---------------------------------------------------------------------------
@@ -179,6 +269,7 @@ function focusLeaf(label) {
 function showLeaf(label) {
   // check this leaf only (Merge/Split/Delete act on it), scroll its row into view, look at it
   for (const cb of $('leaves').querySelectorAll('input')) cb.checked = +cb.dataset.label === label;
+  updatePreview();
   const row = $('leaves').querySelector(`.leaf[data-label="${label}"]`);
   if (row && row.scrollIntoView) row.scrollIntoView({ block: 'nearest' });
   focusLeaf(label);
@@ -219,6 +310,7 @@ function renderLeafList() {
     cb.dataset.label = label;
     cb.disabled = label === 0;
     cb.checked = checked.has(label);
+    cb.addEventListener('change', updatePreview);
     const sw = document.createElement('span');
     sw.className = 'swatch';
     sw.style.background = label === 0 ? '#555' : '#' + leafColor(label).getHexString();
@@ -283,10 +375,16 @@ function confidenceLine() {
     (k ? ` · ${k} doubtful ${k > 1 ? 'leaves' : 'leaf'} marked ?` : '');
 }
 
+function previewLine() {
+  const p = S.preview;
+  if (!p || p.none) return '';
+  return `\nfitted leaf ${p.label}: ${p.ms.toFixed(0)} ms` + (p.fallback ? ' (rigid: degenerate leaf)' : '');
+}
+
 function status(extra = '') {
   setStatus(`${S.n} Gaussians · ${S.leaves.length} leaves · ${S.state ? S.state.n_ops : 0} edits\n` +
-    `pick ${S.lastPickMs.toFixed(1)} ms · update ${S.lastUpdateMs.toFixed(1)} ms` + confidenceLine() +
-    (extra ? `\n${extra}` : ''));
+    `pick ${S.lastPickMs.toFixed(1)} ms · update ${S.lastUpdateMs.toFixed(1)} ms` + previewLine() +
+    confidenceLine() + (extra ? `\n${extra}` : ''));
 }
 
 // ---- picking and tools ------------------------------------------------------------------
@@ -346,9 +444,36 @@ async function step() {
   else if (g.finish) g.finish();
 }
 
+// ---- click-to-split: one click on each of the two leaves merged into one instance ------------
+function markSeed(idx) {
+  if (idx === null) { overlay.remove('seed'); render(); return; }
+  const p = S.positions;
+  overlay.set('seed', new Float32Array([p[3 * idx], p[3 * idx + 1], p[3 * idx + 2]]), null, 'POINTS',
+    [1.0, 0.3, 0.9, 1.0], 12);
+  render();
+}
+
+async function splitClick(e) {
+  let idx;
+  try { idx = await pickAt(e.clientX, e.clientY); } catch (err) { return setStatus(String(err.message || err), true); }
+  if (!(idx >= 0)) return setStatus('nothing under the cursor');
+  const lab = S.labels[idx];
+  if (S.splitSeed === null) {
+    if (lab === 0) return setStatus('click on a leaf (this is the stem / unassigned)', true);
+    S.splitSeed = idx;
+    markSeed(idx);
+    return status(`split leaf ${lab}: now click on the other leaf inside it (Esc: cancel)`);
+  }
+  const a = S.splitSeed;
+  S.splitSeed = null;
+  markSeed(null);
+  await runOp({ op: 'split_at', seeds: [a, idx] });
+}
+
 renderer.domElement.addEventListener('pointerdown', async (e) => {
   if (e.button !== 0 || S.tool === 'orbit' || !S.ready) return;
   e.preventDefault();
+  if (S.tool === 'split') { splitClick(e); return; }
   const radius = +$('radius').value;
   const mode = currentMode(e);
   const g = { op: null, pending: null, finish: null };
@@ -426,7 +551,9 @@ $('quit').addEventListener('click', async () => {
   S.ready = false;
   setStatus('The server has stopped; you can close this tab.');
 });
-$('rgb').addEventListener('change', recolor);
+$('tint').addEventListener('change', recolor);
+$('dots').addEventListener('change', () => { recolor(); requestSort(); render(); });
+$('fit').addEventListener('change', updatePreview);
 $('sort-conf').addEventListener('change', renderLeafList);
 $('next-doubtful').addEventListener('click', nextDoubtful);
 $('home').addEventListener('click', homeView);
@@ -439,7 +566,9 @@ window.addEventListener('keydown', (e) => {
   else if ((e.ctrlKey || e.metaKey) && k === 'y') { e.preventDefault(); $('redo').click(); }
   else if ((e.ctrlKey || e.metaKey) && k === 's') { e.preventDefault(); save(); }
   else if (k === 'enter') assign();
+  else if (k === 'escape' && S.splitSeed !== null) { S.splitSeed = null; markSeed(null); status('split cancelled'); }
   else if (k === 'escape') runOp({ op: 'clear' });
+  else if (k === 'x') { document.querySelector('input[value=split]').click(); }
   else if (k === 'b') { document.querySelector('input[value=brush]').click(); }
   else if (k === 'd') { document.querySelector('input[value=drag]').click(); }
   else if (k === 'v') { document.querySelector('input[value=orbit]').click(); }
@@ -473,9 +602,11 @@ async function main() {
   $('radius').value = meta.brush_radius;
   $('radius-value').textContent = (+meta.brush_radius).toFixed(3);
   $('outputs').textContent = `Save writes ${meta.edits_out} and ${meta.labels_out}`;
-  const buf = await api('points');
-  S.positions = new Float32Array(buf, 0, 3 * S.n);
-  S.rgb = new Uint8Array(buf, 12 * S.n, 3 * S.n);
+  const sp = parseSplats(await api('splats'), S.n);
+  S.positions = sp.positions;
+  S.rgba = sp.rgba;
+  splats.setData(sp, S.n);
+  sorter.postMessage({ positions: Float32Array.from(S.positions) });  // a copy: the page keeps its own
   geometry.setAttribute('position', new THREE.BufferAttribute(S.positions, 3));
   geometry.setAttribute('color', new THREE.BufferAttribute(new Float32Array(3 * S.n), 3));
   geometry.computeBoundingSphere();
@@ -492,12 +623,21 @@ async function main() {
   controls.update();
   S.home = { target: controls.target.clone(), position: camera.position.clone() };
   setTool(document.querySelector('input[name=tool]:checked').value);
-  const st = await api('state');
+  recolor();  // the capture's own colours until the labels come
+  resize();
+  requestSort();
+  // the session may still be starting (segmentation, geodesics): the capture is shown meanwhile
+  let st = await api('state');
+  while (!st.ready) {
+    if (st.failed) return setStatus('could not start: ' + st.failed, true);
+    setStatus(`${S.n} Gaussians · preparing the editor: ${st.phase}…`);
+    await new Promise((r) => setTimeout(r, 250));
+    st = await api('state');
+  }
+  S.ready = true;
   applyState(st);
   // open on the least confident leaf: checked, in view
   if (st.least_confident !== null && st.least_confident !== undefined) showLeaf(st.least_confident);
-  resize();
-  S.ready = true;
   status();
 }
 
@@ -505,6 +645,10 @@ async function main() {
 window.leaffit = {
   get ready() { return S.ready; },
   get busy() { return S.busy || !!S.gesture; },
+  get drawn() { return S.drawn; },  // the first frame of the capture is on screen
+  get firstFrameMs() { return S.firstFrameMs; },  // when it was (ms since navigation start)
+  preview() { return S.preview; },  // the fitted leaf shown: {label, vertices, ops, ms, ...} or null
+  mode() { return dotsMode() ? 'dots' : 'splats'; },
   screenOf(i) {
     const v = new THREE.Vector3(S.positions[3 * i], S.positions[3 * i + 1], S.positions[3 * i + 2]).project(camera);
     const r = renderer.domElement.getBoundingClientRect();
