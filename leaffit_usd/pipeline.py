@@ -59,6 +59,9 @@ class ConvertOptions:
     tint : measure each leaf's colour against the template texture (``mesh.appearance``) and
         write it (USD ``primvars:leaffit:tint``, glTF ``COLOR_0``)
     instanced : glTF output only: template + EXT_mesh_gpu_instancing instead of evaluated leaves
+    pot : when isolation finds a pot, add it and its soil as meshes (``mesh.pot``: a lathe fitted
+        to the pot's Gaussians, a soil disc; vertex colours from theirs): USD ``Pot`` / ``Soil``
+        prims, glTF nodes; never part of the leaves or the stem
     """
 
     up: np.ndarray | None = None
@@ -80,6 +83,7 @@ class ConvertOptions:
     isolate: IsolateParams = field(default_factory=IsolateParams)
     tint: bool = True
     instanced: bool = False
+    pot: bool = False
 
 
 def _to_dict(p) -> dict:
@@ -204,6 +208,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         # file order; dropping it (and, below, the isolated input-frame cloud) keeps one full
         # copy of the Gaussians alive instead of three (~250 MB per million at SH degree 3)
         loaded = _Loaded(len(cloud_in), encode_classes(cloud_in, iso))
+        pot_src = _pot_gaussians(cloud_in, iso, frame) if o.pot else None
         del cloud_in
         prep.loaded = None
         pts = np.asarray(cw.means, np.float64)
@@ -228,13 +233,19 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         with T.stage("tint", "measuring per-leaf colour (tint)"):
             tints = measure_leaf_tints(cw, np.asarray(seg.labels), fits, template)
     params = _params_record(o, iso, int(cloud.file_index[root_index]))
+    pot = None
+    if pot_src is not None:
+        from leaffit_usd.mesh.pot import build_pot
+        pot = build_pot(*pot_src)
+        log.info("      pot: %s", "a lathe and a soil disc" if pot is not None else
+                 "isolation found no pot; none written")
     with T.stage("write", f"writing {output_path}"):
         asset = asset_from_results(
             template, fits, stem, frame, up_axis=str(o.up_axis).upper(),
             meters_per_unit=float(o.meters_per_unit), height_m=o.height_m,
             sheet_offset=DEFAULT_SHEET_OFFSET if o.sheet_offset is None else float(o.sheet_offset),
             input_sha256=sha, params=params,
-            extra_metadata={"input_name": input_path.name})
+            extra_metadata={"input_name": input_path.name}, pot=pot)
         if tints is not None:
             asset.tints = tints.tints
         textures = LeafTextures(template.front_texture, template.back_texture)
@@ -259,6 +270,22 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
              len(result.files), all_bytes / 1024, report["sizes"]["input_bytes"] / 1024,
              report["sizes"]["compression_ratio"], report["timings"]["total"])
     return report
+
+
+def _pot_gaussians(cloud_in, iso, frame):
+    """What ``mesh.pot.build_pot`` takes from the capture, working frame: (pot means, pot colours,
+    soil means, soil colours, axis, centre), or None when isolation found no pot."""
+    from leaffit_usd.isolate import POT, SOIL
+
+    if iso.pot is None or not (np.asarray(iso.classes) == POT).any():
+        return None
+    cls = np.asarray(iso.classes)
+    pts = np.asarray(cloud_in.means, np.float64)
+    pot, soil = cls == POT, cls == SOIL
+    axis = frame.rotation @ np.asarray(iso.pot["axis"], np.float64)
+    centre = frame.to_working(np.asarray(iso.pot["center"], np.float64)[None])[0]
+    return (frame.to_working(pts[pot]), cloud_in.colors[pot], frame.to_working(pts[soil]),
+            cloud_in.colors[soil], axis, centre)
 
 
 def _params_record(o: ConvertOptions, iso, root_gaussian: int) -> dict:

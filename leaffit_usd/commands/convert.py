@@ -78,6 +78,10 @@ def add_options(p) -> None:
     g.add_argument("--bake-size", type=pos_int, default=None,
                    help=f"resolution the textures are baked at (default: --texture-size)")
     g = p.add_argument_group("output")
+    g.add_argument("--pot", action="store_true",
+                   help="when isolation finds a pot, add it and its soil as meshes (Pot and Soil prims, "
+                        "glTF nodes): a surface of revolution fitted to the pot's Gaussians and a soil disc, "
+                        "coloured from theirs; never part of the leaves or the stem")
     g.add_argument("--up-axis", choices=["Y", "Z", "y", "z"], default="Y", help="the stage's upAxis (%(default)s)")
     g.add_argument("--meters-per-unit", type=pos_float, default=1.0, help="the stage's metersPerUnit (%(default)g)")
     g.add_argument("--height", type=pos_float, default=None, metavar="M",
@@ -124,7 +128,7 @@ def options_from_args(args):
                            baked={"auto": "auto", "yes": True, "no": False}[args.baked]),
         up_axis=args.up_axis.upper(), meters_per_unit=args.meters_per_unit, height_m=args.height,
         keep_scene=bool(args.keep_scene), crop=args.crop, tint=not args.no_tint,
-        instanced=args.instanced)
+        instanced=args.instanced, pot=bool(args.pot))
 
 
 def run(args) -> int:

@@ -51,7 +51,7 @@ from leaffit_usd.version import __version__
 from leaffit_usd.usd.asset import PlantAsset
 
 GLTF_FORMATS = (".glb", ".gltf")
-TEXTURE_FORMATS = ("jpg", "png")
+TEXTURE_FORMATS = ("jpg", "png", "jpg+mask")   # jpg+mask (the USD writer's default) -> png here
 INSTANCING_EXT = "EXT_mesh_gpu_instancing"
 LEAF_ROUGHNESS = 0.6
 STEM_COLOR = (0.23, 0.30, 0.12)        # linear RGB (the USD stage's Stem material)
@@ -69,7 +69,9 @@ class GltfOptions:
 
     instanced : False (default) = the evaluated leaves (exact, one mesh); True = the template once
         + EXT_mesh_gpu_instancing (rigid placement only, the per-leaf deformation is lost)
-    texture_format : "jpg" (default, compact, OPAQUE) or "png" (alpha kept, alphaMode MASK)
+    texture_format : "jpg" (default, compact, OPAQUE) or "png" (alpha kept, alphaMode MASK);
+        "jpg+mask" (the USD stage's default) is written as "png": a glTF material has one base
+        colour texture, its alpha the cut-out
     texture_max_size : longest side of the embedded textures, pixels
     jpeg_quality : 1..100
     tint : write the per-leaf tint (COLOR_0 / _COLOR_0) when the asset has one
@@ -180,7 +182,7 @@ def _encode_texture(img: np.ndarray, options: GltfOptions) -> tuple[bytes, str]:
     """(H, W, 3|4) uint8 image -> (encoded bytes, MIME type), downsampled to texture_max_size."""
     from leaffit_usd.image_io import write_image
 
-    fmt = options.texture_format
+    fmt = "png" if options.texture_format == "jpg+mask" else options.texture_format
     with tempfile.TemporaryDirectory(prefix="leaffit-gltf-") as d:
         p = Path(d) / f"t.{fmt}"
         write_image(p, img, max_size=int(options.texture_max_size),
@@ -294,7 +296,7 @@ def build_gltf(asset: PlantAsset, textures=None, options: GltfOptions | None = N
     b = _Builder()
     L = asset.n_leaves
     V = len(asset.template_points)
-    alpha = textures is not None and options.texture_format == "png"
+    alpha = textures is not None and options.texture_format in ("png", "jpg+mask")
     tints, gain = split_tints(asset) if options.tint else (None, np.ones(3))
     mats = []
     for side, img in (("LeafFront", getattr(textures, "front", None)),
@@ -382,6 +384,24 @@ def build_gltf(asset: PlantAsset, textures=None, options: GltfOptions | None = N
         children.append(b.node(name="Stem", mesh=b.mesh("Stem", [prim])))
         counts["vertices"] += len(sv)
         counts["triangles"] += len(sf)
+    pot = getattr(asset, "pot", None)
+    if pot is not None:
+        for part, pts, faces, cols in (("Pot", pot.pot_points, pot.pot_faces, pot.pot_colors),
+                                       ("Soil", pot.soil_points, pot.soil_faces, pot.soil_colors)):
+            if not len(pts) or not len(faces):
+                continue
+            pv = np.asarray(pts, np.float64) @ G[:3, :3].T + G[:3, 3]
+            pf = np.asarray(faces, np.int64)
+            c = np.asarray(cols, np.float64)
+            lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+            attrs = {"POSITION": b.accessor(pv.astype(np.float32), "VEC3", minmax=True),
+                     "NORMAL": b.accessor(_unit_normals(pv, pf), "VEC3"),
+                     "COLOR_0": b.accessor(lin, "VEC3")}
+            prim = b.g.Primitive(attributes=b.g.Attributes(**attrs), indices=b.indices(pf, len(pv)),
+                                 material=b.material(part, (1.0, 1.0, 1.0), None, False))
+            children.append(b.node(name=part, mesh=b.mesh(part, [prim])))
+            counts["vertices"] += len(pv)
+            counts["triangles"] += len(pf)
     root = b.node(name=name, children=children, extras={"leaffit": extras})
     return b.finish(root), counts
 

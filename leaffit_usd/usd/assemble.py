@@ -96,7 +96,7 @@ def asset_from_results(template: TemplateMesh, fits: LeafFits, stem: Stem | None
                        up_axis: str = "Y", meters_per_unit: float = 1.0,
                        height_m: float | None = None, sheet_offset: float = DEFAULT_SHEET_OFFSET,
                        input_sha256: str = "", params: dict | None = None,
-                       extra_metadata: dict | None = None) -> PlantAsset:
+                       extra_metadata: dict | None = None, pot=None) -> PlantAsset:
     """Assemble the PlantAsset (asset frame) from the stage results (working frame).
 
     template : TemplateMesh, template local frame; fits : LeafFits; stem : Stem or None
@@ -105,6 +105,7 @@ def asset_from_results(template: TemplateMesh, fits: LeafFits, stem: Stem | None
         recorded (metadata["sheet_offset"], in template units) and applied by the writer to the
         prototype's drawn points and to the baked leaves, never to the MLS rest points.
     params : the parameters used, recorded in the stage's customData.
+    pot : a ``mesh.pot.PotMesh`` (working frame) or None.
     """
     s_a = asset_scale(frame, meters_per_unit, height_m)
     w2a = working_to_asset(up_axis, s_a)
@@ -192,4 +193,14 @@ def asset_from_results(template: TemplateMesh, fits: LeafFits, stem: Stem | None
         lods=lods,
         skeleton_points=skeleton,
         skeleton_parents=skeleton_parents,
+        pot=None if pot is None else _pot_to_asset(pot, s_a, r_a),
     )
+
+
+def _pot_to_asset(pot, s_a: float, r_a: np.ndarray):
+    """The PotMesh (working frame) in the asset frame (a copy)."""
+    import dataclasses
+
+    def move(p):
+        return (s_a * np.asarray(p, np.float64) @ r_a.T).astype(np.float32)
+    return dataclasses.replace(pot, pot_points=move(pot.pot_points), soil_points=move(pot.soil_points))

@@ -39,6 +39,8 @@ class PlantAsset:
     skeleton_points : (S, 3) float32, asset frame, the stem skeleton's nodes (node 0 the root),
         or None; skeleton_parents : (S,) int32, each node's parent (-1 at the root), or None
         (the wind data hangs every leaf on a node: ``usd.wind``)
+    pot : the pot and soil meshes in the asset frame (``mesh.pot.PotMesh``'s fields) or None
+        (``convert --pot``; never part of the leaves or the stem)
     """
 
     template_points: np.ndarray
@@ -65,6 +67,7 @@ class PlantAsset:
     tints: np.ndarray | None = None
     skeleton_points: np.ndarray | None = None
     skeleton_parents: np.ndarray | None = None
+    pot: object | None = None
 
     @property
     def n_leaves(self) -> int:

@@ -181,8 +181,34 @@ def read_stage_object(stage, path="<stage>") -> PlantAsset:
         stem_points=stem_pts, stem_faces=stem_faces, asset_to_input=asset_to_input,
         front_texture=front_tex, back_texture=back_tex, metadata=metadata,
         tints=tints, stem_colors=_stem_colors(root, len(stem_pts)), lods=_read_lods(stage, tmpl_prim, root, off),
-        **_skeleton(root),
+        **_skeleton(root), pot=_read_pot(root),
     )
+
+
+def _read_pot(root):
+    """The ``Pot`` and ``Soil`` Meshes (``convert --pot``) as a ``mesh.pot.PotMesh`` (asset
+    frame, sRGB vertex colours), or None."""
+    from pxr import UsdGeom
+
+    from leaffit_usd.mesh.pot import PotMesh
+
+    parts = {}
+    for name in ("Pot", "Soil"):
+        prim = root.GetChild(name) if root else None
+        if not prim or not prim.IsA(UsdGeom.Mesh):
+            parts[name] = (np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), np.zeros((0, 3), np.float32))
+            continue
+        m = UsdGeom.Mesh(prim)
+        pts = _np(m.GetPointsAttr().Get(), np.float32, (3,))
+        faces = _np(m.GetFaceVertexIndicesAttr().Get(), np.int32, (3,))
+        pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("displayColor")
+        lin = np.clip(np.asarray(pv.Get(), np.float64).reshape(-1, 3), 0, 1) if pv and pv.HasValue() \
+            else np.full((len(pts), 3), 0.5)
+        srgb = np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055).astype(np.float32)
+        parts[name] = (pts, faces, srgb)
+    if not len(parts["Pot"][0]):
+        return None
+    return PotMesh(*parts["Pot"], *parts["Soil"])
 
 
 def _skeleton(root) -> dict:
@@ -322,7 +348,34 @@ def _material_texture(material) -> str:
 
 def read_texture(stage, asset_path: str) -> np.ndarray | None:
     """Decode a texture referenced by the stage (also inside a .usdz) -> (H, W, 4) uint8 RGBA
-    (straight alpha, ``image_io.read_image_u8``), or None when it cannot be resolved or read."""
+    (straight alpha, ``image_io.read_image_u8``), or None when it cannot be resolved or read.
+    A ``jpg+mask`` texture's alpha is its mask file (``usd.writer.mask_path``)."""
+    from leaffit_usd.usd.writer import mask_path
+
+    img = _read_image_asset(stage, asset_path)
+    if img is None or asset_path.endswith(".png"):
+        return img
+    mask = _read_image_asset(stage, mask_path(asset_path))
+    if mask is not None and mask.shape[:2] == img.shape[:2]:
+        img = img.copy()
+        img[..., 3] = mask[..., 0]
+    return img
+
+
+def has_mask(stage, asset_path: str) -> bool:
+    """Whether the texture ``asset_path`` has a ``jpg+mask`` alpha mask beside it."""
+    from pxr import Ar
+
+    from leaffit_usd.usd.writer import mask_path
+
+    if not asset_path or asset_path.endswith(".png"):
+        return False
+    layer = stage.GetRootLayer()
+    return bool(Ar.GetResolver().Resolve(layer.ComputeAbsolutePath(mask_path(asset_path))))
+
+
+def _read_image_asset(stage, asset_path: str) -> np.ndarray | None:
+    """(H, W, 4) uint8 of an image the stage refers to (resolved, also inside a .usdz), or None."""
     import os
     import tempfile
 

@@ -42,7 +42,17 @@ from leaffit_usd.usd.wind import template_flutter, wind_data
 log = logging.getLogger("leaffit_usd")
 
 FORMATS = (".usda", ".usdc", ".usd", ".usdz")
-TEXTURE_FORMATS = ("jpg", "png")
+#: "jpg+mask": colour as JPEG, the alpha cut-out as a grey PNG beside it (``mask_path``);
+#: "jpg": colour only (the mesh outline is the leaf's outline); "png": one RGBA file
+TEXTURE_FORMATS = ("jpg+mask", "jpg", "png")
+MASK_SUFFIX = ".mask.png"
+
+
+def mask_path(texture: str) -> str:
+    """The alpha mask written beside a ``jpg+mask`` colour texture (same folder, same stem):
+    ``./textures/p.front.jpg`` -> ``./textures/p.front.mask.png``."""
+    suffix = Path(texture).suffix
+    return (texture[:-len(suffix)] if suffix else texture) + MASK_SUFFIX
 STEM_COLOR = (0.23, 0.30, 0.12)   # linear RGB of the stem material
 LEAF_ROUGHNESS = 0.6
 ZIP_EPOCH = 946728000   # 2000-01-01 12:00 UTC: fixed timestamps inside .usdz packages
@@ -60,9 +70,10 @@ class LeafTextures:
 class WriteOptions:
     """How the stage is written.
 
-    texture_format : "png" (default: keeps the alpha cut-out, wired to opacity with
-        opacityThreshold 0.5, so the leaf's fine serration shows) or "jpg" (compact; alpha
-        dropped: the mesh outline is the leaf's outline)
+    texture_format : "jpg+mask" (default: colour as JPEG, the alpha cut-out as a grey PNG mask
+        beside it, wired to opacity with opacityThreshold 0.5, so the leaf's fine serration
+        shows; a 512^2 leaf ~40 KB + 10 KB against ~600 KB as RGBA PNG), "png" (one RGBA file,
+        lossless) or "jpg" (colour only; alpha dropped: the mesh outline is the leaf's outline)
     texture_max_size : textures larger than this (pixels, longest side) are downsampled
     jpeg_quality : 1..100
     baked : write the baked-leaves payload (variant leafRepresentation = baked): True, False or
@@ -71,7 +82,7 @@ class WriteOptions:
     prim_name : name of the plant prim (default: the output file's stem, made a valid identifier)
     """
 
-    texture_format: str = "png"
+    texture_format: str = "jpg+mask"
     texture_max_size: int = 1024
     jpeg_quality: int = 90
     baked: bool | str = "auto"
@@ -142,10 +153,14 @@ def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
     try:
         rel = {}  # role -> relative path inside tmp (and beside / inside the output)
         if textures is not None:
+            ext_t = "jpg" if options.texture_format == "jpg+mask" else options.texture_format
             for role, img in (("front", textures.front), ("back", textures.back)):
-                r = f"textures/{stem}.{role}.{options.texture_format}"
+                r = f"textures/{stem}.{role}.{ext_t}"
                 _write_texture(tmp / r, img, options)
                 rel[f"texture_{role}"] = r
+                if options.texture_format == "jpg+mask":
+                    _write_texture(tmp / mask_path(r), _alpha_of(img), options)
+                    rel[f"texture_{role}_mask"] = mask_path(r)
             front_tex, back_tex = "./" + rel["texture_front"], "./" + rel["texture_back"]
         else:
             front_tex, back_tex = asset.front_texture, asset.back_texture
@@ -156,7 +171,8 @@ def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
             rel["baked"] = baked_rel
         main_rel = f"{stem}.usdc" if ext == ".usdz" else path.name
         rel["geometry"] = f"{stem}.geom.usdc"
-        has_alpha = textures is not None and options.texture_format == "png"
+        has_alpha = "" if textures is None else {"png": "a", "jpg+mask": "mask"}.get(
+            options.texture_format, "")
         _write_main_layer(tmp / main_rel, asset, leaves, name, front_tex, back_tex, has_alpha,
                           "./" + baked_rel if baked_rel else None, bool(lod_leaves),
                           tmp / rel["geometry"], "./" + rel["geometry"])
@@ -238,12 +254,20 @@ def _check_leaves(a: PlantAsset, leaves) -> np.ndarray:
     return arr.astype(np.float32)
 
 
+def _alpha_of(img: np.ndarray) -> np.ndarray:
+    """(H, W, 1) uint8 alpha of an (H, W, 3|4) uint8 texture (255 without an alpha channel)."""
+    img = np.asarray(img)
+    if img.ndim == 3 and img.shape[2] == 4:
+        return np.ascontiguousarray(img[:, :, 3:4])
+    return np.full(img.shape[:2] + (1,), 255, np.uint8)
+
+
 def _write_texture(path: Path, img: np.ndarray, options: WriteOptions) -> None:
-    """Write an (H, W, 3|4) uint8 texture, downsampled to texture_max_size (jpg drops alpha)."""
+    """Write an (H, W, 1|3|4) uint8 texture, downsampled to texture_max_size (jpg drops alpha)."""
     from leaffit_usd.image_io import write_image
 
     img = np.asarray(img)
-    if img.ndim != 3 or img.shape[2] not in (3, 4) or img.dtype != np.uint8:
+    if img.ndim != 3 or img.shape[2] not in (1, 3, 4) or img.dtype != np.uint8:
         raise ParameterError("texture", "an (H, W, 3|4) uint8 image", f"{img.dtype} {img.shape}")
     write_image(path, img, max_size=int(options.texture_max_size), jpeg_quality=int(options.jpeg_quality))
 
@@ -259,9 +283,13 @@ WIND_NODE, WIND_PHASE, WIND_BEND = "leaffit:windNode", "leaffit:windPhase", "lea
 WIND_FLUTTER = "leaffit:windFlutter"   # per vertex, baked leaves
 
 
-def make_material(stage, path: str, texture: str | None, color, has_alpha: bool = False,
+def make_material(stage, path: str, texture: str | None, color, has_alpha: bool | str = False,
                   tint: bool = False):
     """UsdPreviewSurface material; with a texture, diffuseColor (and opacity) read it via primvars:st.
+
+    has_alpha : False / "" (opaque), True / "a" (opacity = the texture's alpha) or "mask"
+        (opacity = the grey mask file beside the texture, :func:`mask_path`, its r channel);
+        either alpha with opacityThreshold 0.5 (a cut-out).
 
     tint : multiply the texture by the per-leaf primvar ``leaffit:tint`` (color3f, linear): a
         UsdPrimvarReader_float3 (fallback (1, 1, 1)) feeds UsdUVTexture's ``scale``, the one
@@ -297,7 +325,18 @@ def make_material(stage, path: str, texture: str | None, color, has_alpha: bool 
         tr.CreateOutput("result", Sdf.ValueTypeNames.Float3)
         tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).ConnectToSource(tr.ConnectableAPI(), "result")
     surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
-    if has_alpha:
+    if has_alpha == "mask":
+        mask = UsdShade.Shader.Define(stage, f"{path}/Mask")
+        mask.CreateIdAttr("UsdUVTexture")
+        mask.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(mask_path(texture)))
+        mask.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+        mask.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
+        mask.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
+        mask.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
+        mask.CreateOutput("r", Sdf.ValueTypeNames.Float)
+        surf.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(mask.ConnectableAPI(), "r")
+        surf.CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(0.5)
+    elif has_alpha:
         tex.CreateOutput("a", Sdf.ValueTypeNames.Float)
         surf.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(tex.ConnectableAPI(), "a")
         surf.CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(0.5)
@@ -359,6 +398,33 @@ def stem_material_color(a: PlantAsset) -> tuple:
     return STEM_COLOR
 
 
+def _author_pot(stage, root: str, looks: str, pot) -> None:
+    """``Pot`` and ``Soil`` Meshes (``mesh.pot``; convert --pot), vertex-coloured, asset frame;
+    customData leaffit:role "pot" / "soil": never leaves or stem."""
+    from pxr import Sdf, UsdGeom, UsdShade, Vt
+
+    from leaffit_usd.geometry.normals import vertex_normals
+
+    for name, pts, faces, cols in (("Pot", pot.pot_points, pot.pot_faces, pot.pot_colors),
+                                   ("Soil", pot.soil_points, pot.soil_faces, pot.soil_colors)):
+        if not len(pts) or not len(faces):
+            continue
+        mesh = UsdGeom.Mesh.Define(stage, f"{root}/{name}")
+        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        mesh.CreatePointsAttr(vec3f_array(pts))
+        mesh.CreateExtentAttr(extent(pts))
+        mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(faces), 3, np.int32)))
+        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(faces, np.int32).ravel()))
+        mesh.CreateNormalsAttr(vec3f_array(vertex_normals(pts, faces, undefined=(0.0, 0.0, 1.0))))
+        mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+        lin = _srgb_to_linear(np.asarray(cols))
+        UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray,
+                                                UsdGeom.Tokens.vertex).Set(vec3f_array(lin))
+        mat = vertex_colour_material(stage, f"{looks}/{name}", tuple(float(x) for x in lin.mean(0)), True)
+        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
+        mesh.GetPrim().SetCustomDataByKey("leaffit:role", name.lower())
+
+
 def _author_wind(pv, w) -> None:
     """The per-instance wind primvars of the leaves' PointInstancer (``usd.wind``): pivot (the
     petiole base) and axis (base to apex), asset frame; the stem skeleton node each leaf hangs
@@ -411,11 +477,17 @@ def _set_stem_geometry(mesh, a: PlantAsset) -> None:
 def make_stem_material(stage, path: str, a: PlantAsset):
     """UsdPreviewSurface whose diffuseColor reads the stem's vertex colours (primvar
     displayColor, linear) with their mean as the fallback; a constant colour without them."""
+    return vertex_colour_material(stage, path, stem_material_color(a),
+                                  a.stem_colors is not None and len(a.stem_colors) > 0)
+
+
+def vertex_colour_material(stage, path: str, color: tuple, per_vertex: bool):
+    """UsdPreviewSurface of linear RGB ``color``; with ``per_vertex`` its diffuseColor reads the
+    mesh's displayColor primvar, ``color`` the fallback."""
     from pxr import Gf, Sdf, UsdShade
 
-    color = stem_material_color(a)
     mat = make_material(stage, path, None, color, False)
-    if a.stem_colors is None or not len(a.stem_colors):
+    if not per_vertex:
         return mat
     surf = UsdShade.Shader(stage.GetPrimAtPath(f"{path}/PreviewSurface"))
     reader = UsdShade.Shader.Define(stage, f"{path}/ColorReader")
@@ -451,7 +523,7 @@ def _stage_units(stage, a: PlantAsset) -> None:
 
 
 def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, front_tex: str,
-                      back_tex: str, has_alpha: bool, baked_rel: str | None, baked_lods: bool,
+                      back_tex: str, has_alpha: str, baked_rel: str | None, baked_lods: bool,
                       geom_out: Path, geom_rel: str) -> None:
     """Two layers: ``geom_out`` (Looks, Leaves, Stem under /<name>, its defaultPrim) and the root
     layer ``out``: the /<name> interface prim (kind, assetInfo, customData, variant sets) whose
@@ -465,7 +537,7 @@ def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, f
 
 
 def _write_geometry_layer(geom_out: Path, main_name: str, a: PlantAsset, leaves: np.ndarray,
-                          name: str, front_tex: str, back_tex: str, has_alpha: bool):
+                          name: str, front_tex: str, back_tex: str, has_alpha: str):
     """The payload layer ``geom_out``: /<name> with Looks, the Leaves instancer and the Stem.
     Returns (the open stage, the template leaf Mesh)."""
     from pxr import Usd, UsdGeom, UsdShade
@@ -493,6 +565,8 @@ def _write_geometry_layer(geom_out: Path, main_name: str, a: PlantAsset, leaves:
         _author_stem_wind(stem, a, wind)
         UsdShade.MaterialBindingAPI.Apply(stem.GetPrim()).Bind(stem_mat)
         stem.GetPrim().SetCustomDataByKey("leaffit:role", "stem")
+    if a.pot is not None:
+        _author_pot(stage, root, looks, a.pot)
 
     stage.GetRootLayer().documentation = (
         f"LeafFit plant geometry: the payload of ./{main_name} (open that file)")
