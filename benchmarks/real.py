@@ -49,14 +49,14 @@ TRUE_LEAVES = 33
 TARGETS = {"up_error_deg": 10.0, "below_soil_share": 0.01, "leaf_count_error": 3}
 
 
-def convert_houseplant(workdir: Path) -> dict:
-    """convert with no options, bake; the figures of the module docstring."""
+def convert_houseplant(workdir: Path, pot: bool = False) -> dict:
+    """convert with no options (or only --pot), bake; the figures of the module docstring."""
     from leaffit_usd.commands.bake import bake
-    from leaffit_usd.pipeline import convert
+    from leaffit_usd.pipeline import ConvertOptions, convert
 
     out = workdir / "houseplant.usdz"
     t0 = time.perf_counter()
-    rep = convert(HOUSEPLANT, out)
+    rep = convert(HOUSEPLANT, out, ConvertOptions(pot=pot))
     wall = time.perf_counter() - t0
     npz = workdir / "houseplant_leaves.npz"
     bake(out, npz)
@@ -91,10 +91,30 @@ def picture(stage: Path, png: Path, size: int = 480) -> None:
     from leaffit_usd.splats.render import fit_bounds
     from leaffit_usd.usd.reader import read_stage
 
+    import zipfile
+
     cloud = load_cloud(HOUSEPLANT)
     means = np.asarray(cloud.means, np.float64)
     centre = 0.5 * (means.min(0) + means.max(0))
-    scene = asset_scene(stage, read_stage(stage))
+    if stage.suffix == ".usdz":   # the textures, where the renderer looks for them
+        with zipfile.ZipFile(stage) as z:
+            z.extractall(stage.parent)
+    asset = read_stage(stage)
+    scene = asset_scene(stage, asset)
+    if asset.pot is not None:   # the pot and soil, vertex-coloured (kind 2, as the stem)
+        m = np.asarray(asset.asset_to_input, np.float64)
+        for pts, faces, cols in ((asset.pot.pot_points, asset.pot.pot_faces, asset.pot.pot_colors),
+                                 (asset.pot.soil_points, asset.pot.soil_faces, asset.pot.soil_colors)):
+            if not len(faces):
+                continue
+            n0 = len(scene["points"])
+            p_in = np.asarray(pts, np.float64) @ m[:3, :3].T + m[:3, 3]
+            scene["points"] = np.vstack([scene["points"], p_in])
+            scene["faces"] = np.vstack([scene["faces"], np.asarray(faces, np.int64) + n0])
+            scene["face_kind"] = np.r_[scene["face_kind"], np.full(len(faces), 2)]
+            scene["uvs"] = np.vstack([scene["uvs"], np.zeros((len(pts), 2))])
+            scene["colors"] = np.vstack([scene["colors"], np.asarray(cols, np.float64)])
+            scene["face_leaf"] = np.r_[scene["face_leaf"], np.zeros(len(faces), np.int64)]
     tiles = []
     for azimuth in (0.0, 90.0):
         R = view_basis(TRUE_UP, azimuth, 10.0)
@@ -118,6 +138,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-scans", action="store_true", help="skip benchmarks/real_scans.py")
     ap.add_argument("--png", default=None, help="write the input | asset picture here "
                     "(e.g. docs/real_houseplant.png)")
+    ap.add_argument("--pot-png", default=None, help="also convert with --pot and write its picture "
+                    "here (e.g. docs/real_houseplant_pot.png)")
     args = ap.parse_args(argv)
     if not HOUSEPLANT.exists():
         print(f"skipped: {REAL} is absent (the real plants are not part of the repository)")
@@ -128,6 +150,10 @@ def main(argv=None) -> int:
         hp = convert_houseplant(Path(td))
         if args.png:
             picture(Path(td) / "houseplant.usdz", Path(args.png))
+    if args.pot_png:
+        with tempfile.TemporaryDirectory() as td:
+            convert_houseplant(Path(td), pot=True)
+            picture(Path(td) / "houseplant.usdz", Path(args.pot_png))
     print("houseplant.splat (Marcel Padilla, CC-BY-4.0), convert with no options:")
     rows = [("up axis error (deg)", hp["up_error_deg"], f"<= {TARGETS['up_error_deg']}"),
             ("up from", hp["up_source"] or "the plant's shape", ""),
