@@ -236,14 +236,15 @@ class Plant:
         """Write the current plant as a new, complete asset (.usda/.usdc/.usdz) with
         ``usd.writer.write_stage`` (textures re-read from the current files). Returns WriteResult."""
         from leaffit_usd.runtime.evaluator import asset_leaves
-        from leaffit_usd.usd.reader import read_texture
+        from leaffit_usd.usd.reader import has_mask, read_texture
         from leaffit_usd.usd.writer import LeafTextures, WriteOptions, write_stage
 
         a = self.asset
         front, back = read_texture(self.stage, a.front_texture), read_texture(self.stage, a.back_texture)
         textures = LeafTextures(front, back) if front is not None and back is not None else None
         if options is None:
-            fmt = "png" if Path(a.front_texture).suffix.lower() == ".png" else "jpg"
+            fmt = "png" if Path(a.front_texture).suffix.lower() == ".png" else \
+                "jpg+mask" if has_mask(self.stage, a.front_texture) else "jpg"
             options = WriteOptions(texture_format=fmt, texture_max_size=16384)
         return write_stage(path, a, textures, options, leaves=asset_leaves(a, separate_sheets=True),
                            lod_leaves=[asset_leaves(a.at_lod(k), separate_sheets=True)

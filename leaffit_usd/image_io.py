@@ -96,7 +96,8 @@ def _to_u8(img: np.ndarray) -> np.ndarray:
 
 def write_image(path: str | os.PathLike, image: np.ndarray, max_size: int | None = None,
                 jpeg_quality: int = 90) -> str:
-    """Write an (H, W, 3|4) image (uint8, or float in [0, 1]) atomically; returns the path.
+    """Write an (H, W, 1|3|4) image (uint8, or float in [0, 1]) atomically; returns the path.
+    One channel is grey (e.g. an alpha mask beside a JPEG colour texture).
 
     The format is the suffix's (:data:`WRITE_FORMATS`). ``max_size``: downsample (keeping the
     aspect) so the longest side is at most this many pixels. Raises :class:`ImageError`.
@@ -108,15 +109,15 @@ def write_image(path: str | os.PathLike, image: np.ndarray, max_size: int | None
         raise ImageError(path, f"cannot write images of type {fmt or '(no suffix)'!r}; "
                                f"use {', '.join(WRITE_FORMATS)}")
     img = np.asarray(image)
-    if img.ndim != 3 or img.shape[2] not in (3, 4):
-        raise ImageError(path, f"expected an (H, W, 3|4) image, got shape {img.shape}")
+    if img.ndim != 3 or img.shape[2] not in (1, 3, 4):
+        raise ImageError(path, f"expected an (H, W, 1|3|4) image, got shape {img.shape}")
     if fmt == "exr":
         f = img.astype(np.float32) / (255.0 if img.dtype == np.uint8 else 1.0)
         f[..., :3] = srgb_to_linear(np.clip(f[..., :3], 0, 1))
         data, pixel = np.ascontiguousarray(f), oiio.HALF
     else:
         data, pixel = np.ascontiguousarray(_to_u8(img)), oiio.UINT8
-        if fmt == "jpg":
+        if fmt == "jpg" and data.shape[2] == 4:
             data = np.ascontiguousarray(data[:, :, :3])
     h, w, c = data.shape
     spec = oiio.ImageSpec(w, h, c, oiio.FLOAT if pixel == oiio.HALF else oiio.UINT8)

@@ -16,7 +16,7 @@ from leaffit_usd.usd.asset import PlantAsset
 
 @dataclass
 class EditablePlant:
-    """A stage's content. front, back : (H, W, 4) float32 RGBA images; texture_format : 'jpg'|'png'."""
+    """A stage's content. front, back : (H, W, 4) float32 RGBA images; texture_format : 'jpg+mask'|'jpg'|'png'."""
 
     asset: PlantAsset
     front: np.ndarray
@@ -39,8 +39,30 @@ def _read_asset_bytes(stage_path: Path, asset_path: str) -> bytes:
 
 
 def _texture(stage_path: Path, asset_path: str) -> np.ndarray:
+    """(H, W, 4) float32 RGBA of a leaf texture; a ``jpg+mask`` texture's alpha from its mask."""
     if not asset_path:
         raise InputFileError(stage_path, "the leaf material has no texture to edit")
+    img = _image_asset(stage_path, asset_path)
+    mask = _mask(stage_path, asset_path)
+    if mask is not None and mask.shape[:2] == img.shape[:2]:
+        img = img.copy()
+        img[..., 3] = mask[..., 0]
+    return img
+
+
+def _mask(stage_path: Path, asset_path: str):
+    """The ``jpg+mask`` alpha mask beside a colour texture (``usd.writer.mask_path``), or None."""
+    from leaffit_usd.usd.writer import mask_path
+
+    if asset_path.lower().endswith(".png"):
+        return None
+    try:
+        return _image_asset(stage_path, mask_path(asset_path))
+    except InputFileError:
+        return None
+
+
+def _image_asset(stage_path: Path, asset_path: str) -> np.ndarray:
     suffix = os.path.splitext(asset_path)[1] or ".png"
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d) / f"texture{suffix}"
@@ -56,7 +78,8 @@ def load_plant(path) -> EditablePlant:
     asset = read_stage(path)
     front = _texture(path, asset.front_texture)
     back = _texture(path, asset.back_texture) if asset.back_texture else front.copy()
-    fmt = "png" if asset.front_texture.lower().endswith(".png") else "jpg"
+    fmt = "png" if asset.front_texture.lower().endswith(".png") else \
+        "jpg+mask" if _mask(path, asset.front_texture) is not None else "jpg"
     return EditablePlant(asset, front, back, fmt)
 
 

@@ -134,7 +134,7 @@ def test_rule_fails_on_broken_stage(good, mutate, rule, severity):
 
 
 def test_missing_texture_and_baked_payload(good, tmp_path):
-    (tmp_path / "textures" / "p.front.png").unlink()
+    (tmp_path / "textures" / "p.front.jpg").unlink()
     (tmp_path / "p.baked.usdc").unlink()
     rep = validate_file(good)
     rules = {f.rule for f in rep.findings if f.severity == "error"}

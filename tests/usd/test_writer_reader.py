@@ -30,8 +30,8 @@ def test_round_trip_and_usd_validation(tmp_path, asset, textures, ext):
         assert x.shape == y.shape, name
         np.testing.assert_allclose(y, x, rtol=1e-6, atol=1e-7, err_msg=name)
     assert b.sigma == pytest.approx(asset.sigma) and b.reg == pytest.approx(asset.reg)
-    assert b.front_texture == "./textures/plant.front.png"
-    assert b.back_texture == "./textures/plant.back.png"
+    assert b.front_texture == "./textures/plant.front.jpg"      # jpg+mask, the default
+    assert b.back_texture == "./textures/plant.back.jpg"
     assert b.metadata["input_sha256"] == asset.metadata["input_sha256"]
     rep = validate_file(out)
     assert rep.count("error") == 0, [str(f) for f in rep.findings]
@@ -39,11 +39,13 @@ def test_round_trip_and_usd_validation(tmp_path, asset, textures, ext):
     if ext == "usdz":
         names = zipfile.ZipFile(out).namelist()
         assert names[0] == "plant.usdc"
-        assert {"textures/plant.front.png", "textures/plant.back.png", "plant.baked.usdc"} <= set(names)
+        assert {"textures/plant.front.jpg", "textures/plant.back.jpg", "textures/plant.front.mask.png",
+                "textures/plant.back.mask.png", "plant.baked.usdc"} <= set(names)
         assert all(i.compress_type == zipfile.ZIP_STORED for i in zipfile.ZipFile(out).infolist())
         assert sorted(p.name for p in tmp_path.iterdir()) == ["plant.usdz"]
     else:
-        assert (tmp_path / "textures" / "plant.front.png").is_file()
+        assert (tmp_path / "textures" / "plant.front.jpg").is_file()
+        assert (tmp_path / "textures" / "plant.front.mask.png").is_file()
         assert (tmp_path / "plant.baked.usdc").is_file()
 
 
@@ -150,6 +152,32 @@ def test_png_textures_keep_alpha_and_downsample(tmp_path, asset, textures):
     assert surf.GetInput("opacity").HasConnectedSource() and surf.GetInput("opacityThreshold").Get() == 0.5
 
 
+def test_jpg_mask_textures_keep_the_cut_out(tmp_path, asset, textures):
+    """jpg+mask (the default): a JPEG colour file and a one-channel PNG mask whose r drives
+    opacity; the reader puts the mask back into alpha exactly (the colour within JPEG's loss)."""
+    import OpenImageIO as oiio
+    from pxr import Usd, UsdShade
+
+    from leaffit_usd.usd.reader import open_stage, read_texture
+
+    rgba = np.array(textures.front, np.uint8, copy=True)
+    rgba[..., 3] = 0
+    rgba[4:-4, 6:-6, 3] = 255
+    rgba[4, 6:-6, 3] = 128
+    W.write_stage(tmp_path / "p.usda", asset, W.LeafTextures(rgba, rgba.copy()),
+                  leaves=asset_leaves(asset, separate_sheets=True))
+    spec = oiio.ImageInput.open(str(tmp_path / "textures" / "p.front.mask.png")).spec()
+    assert spec.nchannels == 1
+    assert oiio.ImageInput.open(str(tmp_path / "textures" / "p.front.jpg")).spec().nchannels == 3
+    back = read_texture(open_stage(tmp_path / "p.usda"), "./textures/p.front.jpg")
+    np.testing.assert_array_equal(back[..., 3], rgba[..., 3])
+    assert np.abs(back[..., :3].astype(int) - rgba[..., :3]).mean() < 6
+    stage = Usd.Stage.Open(str(tmp_path / "p.usda"))
+    surf = UsdShade.Shader(stage.GetPrimAtPath("/p/Looks/LeafFront/PreviewSurface"))
+    src = surf.GetInput("opacity").GetConnectedSources()[0][0]
+    assert src.source.GetPath().name == "Mask" and src.sourceName == "r"
+
+
 def test_png_textures_keep_straight_alpha(tmp_path, asset, textures):
     """Semi-transparent texels keep their colour on disk and read back exactly (the writer used to
     let OpenImageIO divide colour by alpha on write, clipping it at 255)."""
@@ -194,7 +222,7 @@ def test_plain_pxr_reads_every_value_without_the_plugin(tmp_path, asset, texture
 def test_usdz_leaves_baked_payload_out_by_default(tmp_path, asset, textures):
     W.write_stage(tmp_path / "p.usdz", asset, textures, leaves=asset_leaves(asset, separate_sheets=True))
     names = zipfile.ZipFile(tmp_path / "p.usdz").namelist()
-    assert "p.baked.usdc" not in names and len(names) == 4 and "p.geom.usdc" in names
+    assert "p.baked.usdc" not in names and len(names) == 6 and "p.geom.usdc" in names  # + 2 masks
     assert "leafRepresentation" not in (tmp_path / "p.usdz").read_bytes().decode("latin-1")
     assert validate_file(tmp_path / "p.usdz").count("error") == 0
 

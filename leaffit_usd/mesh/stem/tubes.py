@@ -13,7 +13,7 @@ from leaffit_usd.mesh.stem.skeleton import Skeleton, streams
 
 
 # (sides, ring spacing multiplier) of the coarser levels of detail, after LOD0's own
-LOD_LEVELS = ((8, 2.0), (5, 4.0))
+LOD_LEVELS = ((6, 2.0), (4, 4.0))
 
 
 # a stream's node whose spread exceeds this multiple of the stream's median holds several tubes
