@@ -34,6 +34,8 @@ Steps (working frame: root at the origin, +Z up, plant height 1; radii in those 
    is several leaves (touching or overlapping leaves, each on its own stalk): it is split by
    graph-geodesic distance from each attachment. An attachment with blade all round it is a stem
    touching the blade's face, not a stalk's entry (:func:`face_contacts`), and cuts nothing.
+   A "blade" entered by the stem at ``stem_contacts`` or more separate places (face contacts
+   aside) runs along it: a stretch of stem the tube test missed (a scan's flat strip), not leaves.
 4. **Leaflets joined at one point** (the three leaflets of a trifoliate leaf meeting at the end of
    the rachis, touching young leaves of a bud) share one attachment. The merge tree of the
    superlevel sets of the distance from the attachment separates them: tips are born, branches
@@ -531,6 +533,9 @@ def find_leaves(g: SurfaceGraph, sheet: csr_matrix, stem: np.ndarray, d_root: np
             face = face_contacts(g, members, groups)
             if not face.all():
                 groups = [grp for grp, f in zip(groups, face) if not f]
+        if len(groups) >= params.stem_contacts:  # runs along the stem: stem the tube test missed
+            stem[members] = True
+            continue
         if not groups:  # no stalk touches it: grow from its lowest point
             fin = np.where(np.isfinite(d_root[members]), d_root[members], np.inf)
             groups = [members[[int(np.argmin(fin))]]]

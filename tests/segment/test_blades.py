@@ -416,3 +416,26 @@ def test_a_leaf_folded_into_a_u_is_not_a_tube():
     assert p.piece_thick < np.median(th) < p.blade_thick
     assert not _piece_is_tube(g, nodes, th, p)
     assert _piece_is_tube(g, nodes, th, SegmentParams(blade_thick=p.piece_thick))
+
+
+def test_a_piece_touching_the_stem_in_many_places_is_stem():
+    """A flat strip with the stem's tube test holding only in patches along its margin (a scan
+    sees a stem from one side): one sheet piece touching the stem at four separate places is a
+    stretch of stem, not leaves; a leaf is entered by one stalk (two touching leaves make two
+    contacts)."""
+    from leaffit_usd.segment.blades import find_leaves, piece_thickness, sheet_edges
+
+    rng = np.random.default_rng(18)
+    n = 6000
+    pts = np.stack([(rng.random(n) - 0.5) * 0.04, np.zeros(n), 0.1 + 0.45 * rng.random(n)], 1)
+    nrm = np.tile([0, 1.0, 0], (n, 1))
+    p = SegmentParams()
+    g = build_surface_graph(pts, nrm, np.ones(n, bool), p)
+    x, z = g.points[:, 0], g.points[:, 2]
+    stem = (z < 0.12) | ((x < -0.012) & np.isin(np.floor((z - 0.1) / 0.02), [2, 7, 12, 17]))
+    sheet = sheet_edges(g, stem, p)
+    th = piece_thickness(g, None, p)
+    found = find_leaves(g, sheet, stem, z, p, thick=th)
+    assert found.stem.mean() > 0.95 and found.labels.max() == 0
+    many = find_leaves(g, sheet, stem, z, SegmentParams(stem_contacts=100), thick=th)
+    assert many.labels.max() >= 2  # cut into "leaves" at the contacts
