@@ -33,16 +33,20 @@ mean diagonal let it jump, the field swung past the rim, and the re-paired neigh
 it in a worse basin (the Hausdorff distance); damping each by its own curvature moves every
 handle a similar fraction of its way per iteration, the path Adam takes, at a tenth of its cost.
 
-Start (``start``): "rigid" (ours) = the template placed by the leaf's frame and scale (q = p);
-"assignment" = the paper's initial correspondence (FPS of the leaf matched to p by
-Jonker-Volgenant). From the paper's start Gauss-Newton follows a crossed pairing of neighbouring
-handles; from the rigid start the field unfolds smoothly (Corr x10 over 4 suite plants 0.0063
--> 0.0061, HD 0.114 -> 0.105).
+Start (``FitParams.start``): "rigid" = the template placed by the leaf's frame and scale
+(q = p); "assignment" = the paper's initial correspondence (FPS of the leaf matched to p by
+Jonker-Volgenant); "best" (ours) = both in one batch of 2B problems, keeping per leaf the result
+with the lower objective (:class:`GaussNewtonResult`'s energy). From the paper's start
+Gauss-Newton can follow a crossed pairing of neighbouring handles; from the rigid start the
+field unfolds smoothly, except on an arched strap leaf (lucky bamboo), whose PCA frame is far
+from the template's.
 
 All leaves are solved together: stacked (B, 3K, 3K) normal equations, one batched solve per
 iteration. Frames: each leaf's local frame, template units. Returns (B, K, 3) float64.
 """
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -102,8 +106,22 @@ def _back_pair(X: np.ndarray, Y: _Padded) -> np.ndarray:
     return out
 
 
+class GaussNewtonResult(NamedTuple):
+    """targets : (B, K, 3) float64, template units; energy : (B,) the objective at them (its
+    neighbours re-paired there), template units squared."""
+
+    targets: np.ndarray
+    energy: np.ndarray
+
+
 def refine_targets(template, leaves: list, p: np.ndarray, q0: np.ndarray, params: FitParams,
                    outlines: list | None = None) -> np.ndarray:
+    """:func:`gauss_newton`'s targets alone: (B, K, 3) float64."""
+    return gauss_newton(template, leaves, p, q0, params, outlines).targets
+
+
+def gauss_newton(template, leaves: list, p: np.ndarray, q0: np.ndarray, params: FitParams,
+                 outlines: list | None = None) -> GaussNewtonResult:
     """Gauss-Newton on the objective of the module doc, every leaf at once.
 
     template : the template leaf (``local`` (M, 3) its denoised centres, ``apex`` (3,), local
@@ -112,12 +130,12 @@ def refine_targets(template, leaves: list, p: np.ndarray, q0: np.ndarray, params
     p : (K, 3) template control points; q0 : (B, K, 3) start targets (template units)
     outlines : None, or the template's then each leaf's silhouette outline ((n, 2) each, local
         frame, template units; (0, 2) where a leaf has none)
-    Returns (B, K, 3) float64 targets, template units.
+    Returns :class:`GaussNewtonResult` (targets, template units, and the objective there).
     """
     q = np.array(q0, np.float64).reshape(len(leaves), len(p), 3)
     B, K = q.shape[:2]
     if B == 0 or params.refine <= 0:
-        return q
+        return GaussNewtonResult(q, np.zeros(B))
     X = template.local[_fps(template.local, params.refine_points)]
     A = mls_weights(p, X, params.sigma, params.reg)                      # (M, K)
     M = len(X)
@@ -154,10 +172,20 @@ def refine_targets(template, leaves: list, p: np.ndarray, q0: np.ndarray, params
         D = d * np.diagonal(H, axis1=1, axis2=2)                        # (B, 3K) Marquardt
         H = H + D[:, :, None] * np.eye(3 * K)[None]
         q = np.linalg.solve(H, (g + D * q.reshape(B, -1))[..., None])[..., 0].reshape(B, K, 3)
-    return q
+    # the objective at the result, its neighbours re-paired there
+    Xd = np.einsum("mk,bkc->bmc", A, q)
+    ia, ib = _pair(Y.trees, Xd), _back_pair(Xd, Y)
+    d_a = Xd - np.take_along_axis(Y.pts, ia[..., None], 1)
+    d_b = np.take_along_axis(Xd, ib[..., None], 1) - Y.pts
+    energy = params.lam * ((d_a ** 2).sum(-1).mean(1) + ((d_b ** 2).sum(-1) * Y.w).sum(1))
+    energy += params.plane_weight * ((d_a * np.take_along_axis(Nrm, ia[..., None], 1)).sum(-1) ** 2).mean(1)
+    energy += params.lam * params.landmark_weight * ((np.einsum("lk,bkc->blc", A_lm, q) - z_lm) ** 2).sum((1, 2))
+    if outline is not None:
+        energy += outline.energy(q)
+    return GaussNewtonResult(q, energy)
 
 
-class _OutlineTerm:
+class _OutlineTerm:  # noqa: D101 (doc below)
     """The outline Chamfer of the module doc (in the leaf plane), its normal equations per leaf.
 
     outlines : the template's (n, 2) then each leaf's outline; X (M, 3) the template points
@@ -194,3 +222,13 @@ class _OutlineTerm:
         dH = self.w * m[:, None, None] * _kron3(H_o, self.E_xy)
         dg = self.w * m[:, None] * np.concatenate([g_o, np.zeros((B, K, 1))], -1).reshape(B, -1)
         return dH, dg
+
+    def energy(self, q: np.ndarray) -> np.ndarray:
+        """(B,) the outline term's value at targets q (B, K, 3) (0 for a leaf without one)."""
+        if not self.on or not self.use.any():
+            return np.zeros(len(q))
+        Xo = np.einsum("nk,bkc->bnc", self.A_o, q[:, :, :2])
+        d_o = Xo - np.take_along_axis(self.Y.pts, _pair(self.Y.trees, Xo)[..., None], 1)
+        d_c = np.take_along_axis(Xo, _back_pair(Xo, self.Y)[..., None], 1) - self.Y.pts
+        e = (d_o ** 2).sum(-1).mean(1) + ((d_c ** 2).sum(-1) * self.Y.w).sum(1)
+        return self.w * self.use * e

@@ -59,7 +59,7 @@ from leaffit_usd.determinism import deterministic
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.fit.adam import Covariances, optimize_adam, start_index
 from leaffit_usd.fit.denoise import DenoiseParams, denoise_leaf
-from leaffit_usd.fit.gauss_newton import refine_targets
+from leaffit_usd.fit.gauss_newton import gauss_newton, refine_targets
 from leaffit_usd.fit.mls import DEFAULT_SIGMA, mls_weights
 from leaffit_usd.fit.params import FACE_ON_MAX_DEG, FitParams
 from leaffit_usd.fit.result import LeafFits
@@ -147,7 +147,7 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
     L = n_leaves
     fallback = np.array([bool(lf.degenerate) for lf in leaves])
     targets, init_ok = _initial_targets(leaves, p, tmpl, fallback)
-    if params.optimize and init_ok and params.start == "rigid":
+    if params.optimize and init_ok and params.start in ("rigid", "best") and params.steps > 0:
         targets[init_ok] = p                  # the template placed by each leaf's frame and scale
     if params.optimize and params.steps > 0 and init_ok:
         opt = optimize_adam(T, [leaves[j] for j in init_ok], p, targets[init_ok], means, covs,
@@ -159,8 +159,8 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
             outlines = [_silhouette_outline(lf, covs, opac, params.fg_alpha, means)
                         if _seen_face_on(lf) else np.zeros((0, 2))
                         for lf in [T] + [leaves[j] for j in init_ok]]
-        targets[init_ok] = refine_targets(T, [leaves[j] for j in init_ok], p, targets[init_ok],
-                                          params, outlines)
+        targets[init_ok] = _solve(T, [leaves[j] for j in init_ok], p, targets[init_ok], params,
+                                  outlines)
 
     bad = ~np.isfinite(targets).all(axis=(1, 2))
     for j in np.flatnonzero(bad):
@@ -189,6 +189,22 @@ def fit_leaves(cloud_working: GaussianCloud, seg: Segmentation,
         reg=float(params.reg),
         params=info,
     )
+
+
+def _solve(T, leaves: list, p: np.ndarray, q0: np.ndarray, params: FitParams, outlines):
+    """Gauss-Newton (:mod:`.gauss_newton`) from ``q0`` (B, K, 3), the assignment (or Adam's
+    result); with ``start`` "rigid" from ``p``, with "best" from both, keeping per leaf the
+    lower objective (one batch of 2B problems). Returns (B, K, 3)."""
+    B = len(leaves)
+    if params.steps > 0 or params.start == "assignment":
+        return refine_targets(T, leaves, p, q0, params, outlines)
+    rigid = np.repeat(p[None], B, 0)
+    if params.start == "rigid":
+        return refine_targets(T, leaves, p, rigid, params, outlines)
+    both = None if outlines is None else outlines + outlines[1:]
+    r = gauss_newton(T, leaves + leaves, p, np.concatenate([rigid, q0]), params, both)
+    use_q0 = r.energy[B:] < r.energy[:B]
+    return np.where(use_q0[:, None, None], r.targets[B:], r.targets[:B])
 
 
 def _scale_to_template(leaves: list, T, tmpl: int, params: FitParams) -> None:
