@@ -162,3 +162,83 @@ def test_opens_on_the_least_confident_leaf(plant, heat, tmp_path):
             browser.close()
     finally:
         server.stop()
+
+
+def test_splats_split_and_fitted_leaf_in_chromium(plant, heat, tmp_path):
+    """The two leaves of the two-leaf plant merged into one instance: the page draws splats (not
+    the dots, which it also offers), shows the fitted leaf of the checked instance, and the
+    Split tool's two clicks (one per leaf) cut it in two; the saved split_at replays exactly."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    write_ply(plant[0], tmp_path / "plant.ply")
+    cloud = load_cloud(tmp_path / "plant.ply")
+    truth = plant[1][cloud.file_index]
+    merged = np.where(truth > 0, 1, 0).astype(np.int32)
+    session = build_session(cloud, merged, tmp_path / "plant.ply", tmp_path / "e.json", tmp_path / "l.npz",
+                            n_samples=1500, solver_factory=heat, height=0.8, up=(0.0, 0.0, 1.0))
+    server = ViewerServer(session).start_background()
+    try:
+        with sync_api.sync_playwright() as p:
+            browser, page, errors = _open_editor(p, server)
+            page.wait_for_function("() => window.leaffit.drawn")
+            assert page.evaluate("window.leaffit.mode()") == "splats"
+            splat_png = page.locator("#view canvas").screenshot()
+            page.check("[data-testid=dots]")
+            page.wait_for_timeout(300)
+            dots_png = page.locator("#view canvas").screenshot()
+            page.uncheck("[data-testid=dots]")
+            img = _pixels(splat_png)
+            lit = (np.abs(img - [29, 31, 33]).sum(-1) > 30).mean()
+            assert 0.01 < lit < 0.9, lit  # the plant covers part of the view
+            differ = (np.abs(img - _pixels(dots_png)).sum(-1) > 30).mean()
+            assert differ > 0.2 * lit, (differ, lit)  # splats, not the dots
+            # the fitted leaf of the checked instance
+            page.check("#leaves input[data-label='1']")
+            page.wait_for_function("() => window.leaffit.preview() && window.leaffit.preview().vertices > 50",
+                                   timeout=30000)
+            # two clicks, one on each true leaf (Gaussians visible under the cursor)
+            def visible_on(k):
+                ids = np.flatnonzero(truth == k)
+                ids = ids[np.argsort(np.abs(np.abs(cloud.means[ids, 0]) - 0.25))][:30]
+                for i in ids.tolist():
+                    s = page.evaluate(f"window.leaffit.screenOf({i})")
+                    g = page.evaluate(f"window.leaffit.pick({s['x']}, {s['y']})")
+                    if g >= 0 and truth[g] == k:
+                        return s
+                raise AssertionError(f"no Gaussian of leaf {k} visible")
+            a, b = visible_on(1), visible_on(2)
+            page.check("[data-testid=tool-split]")
+            page.mouse.click(a["x"], a["y"])
+            page.wait_for_function("() => document.getElementById('status').textContent.includes('other leaf')")
+            page.mouse.click(b["x"], b["y"])
+            page.wait_for_function("() => window.leaffit.state().n_ops === 1", timeout=30000)
+            assert len(page.evaluate("window.leaffit.state().leaves")) == 2
+            # the preview follows the edit: leaf 1 is now one leaf, fitted again
+            page.wait_for_function("() => window.leaffit.preview().ops === 1 && window.leaffit.preview().vertices",
+                                   timeout=30000)
+            page.click("[data-testid=save]")
+            page.wait_for_function("() => document.getElementById('outputs').textContent.startsWith('saved')")
+            assert not errors, errors
+            browser.close()
+    finally:
+        server.stop()
+    saved = np.load(tmp_path / "l.npz")["labels"][cloud.file_index]
+    assert (saved[truth == 1] == saved[truth == 1][0]).mean() > 0.97
+    assert (saved[truth == 2] == saved[truth == 2][0]).mean() > 0.97 and saved[truth == 1][0] != saved[truth == 2][0]
+    ops = load_edits(tmp_path / "e.json", tmp_path / "plant.ply").operations
+    assert [o["op"] for o in ops] == ["split_at"]
+    cloud2 = load_cloud(tmp_path / "plant.ply")
+    replayed = apply_edits(merged.copy(), cloud2, load_edits(tmp_path / "e.json", tmp_path / "plant.ply"),
+                           solver_factory=heat)
+    assert np.array_equal(replayed, saved)
+
+
+def _pixels(png: bytes) -> np.ndarray:
+    """(H, W, 3) float64 0..255 of a PNG screenshot (the project's one image reader)."""
+    import tempfile
+
+    from leaffit_usd.image_io import read_image_u8
+
+    with tempfile.NamedTemporaryFile(suffix=".png") as f:
+        f.write(png)
+        f.flush()
+        return np.asarray(read_image_u8(f.name), np.float64)[..., :3]

@@ -411,7 +411,7 @@ def test_starting_session_serves_the_capture_and_refuses_edits(served):
     c = app.test_client()
     meta = c.get(f"/{TOKEN}/api/meta").get_json()
     assert meta["ready"] is False and meta["phase"] == "geodesics" and meta["samples"] is None
-    assert len(c.get(f"/{TOKEN}/api/splats").data) == 26 * len(built.cloud)
+    assert len(c.get(f"/{TOKEN}/api/splats").data) == 30 * len(built.cloud)
     assert c.get(f"/{TOKEN}/api/state").get_json() == {"ready": False, "phase": "geodesics", "failed": None}
     for route in ("op", "pick", "preview", "undo", "save", "leaf"):
         r = c.post(f"/{TOKEN}/api/{route}", json={"op": {"op": "clear"}})

@@ -9,7 +9,7 @@
 // are drawn back to front (sort-worker.js) and blended "over" with premultiplied colours.
 //
 // Per Gaussian the GPU holds two RGBA32UI texels (centre as float bits + RGBA8 colour;
-// float16 scales + int8 quaternion) and one RGBA8 tint texel (the label colour and how much of
+// float16 scales + int16 quaternion) and one RGBA8 tint texel (the label colour and how much of
 // it to mix in; the selection). The sorted order is a per-instance attribute.
 
 const TEX_W = 4096;
@@ -37,9 +37,9 @@ void main() {
   if (cam.z > -1e-4 || abs(clip.x) > lim || abs(clip.y) > lim) { gl_Position = vec4(0.0, 0.0, 2.0, 1.0); return; }
   vec2 sxy = unpackHalf2x16(d1.x);
   float sz = unpackHalf2x16(d1.y).x;
-  uint qb = d1.z;  // int8 w, x, y, z (byte 0 = w)
-  vec4 q = vec4(float(int(qb << 24) >> 24), float(int(qb << 16) >> 24),
-                float(int(qb << 8) >> 24), float(int(qb) >> 24));
+  // int16 w, x (d1.z) and y, z (d1.w), low half first
+  vec4 q = vec4(float(int(d1.z << 16) >> 16), float(int(d1.z) >> 16),
+                float(int(d1.w << 16) >> 16), float(int(d1.w) >> 16));
   q = normalize(q);
   float w = q.x, x = q.y, y = q.z, z = q.w;
   mat3 R = mat3(1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y),
@@ -118,8 +118,8 @@ export function parseSplats(buf, n) {
   return {
     positions: new Float32Array(buf, 0, 3 * n),
     scales: new Uint16Array(buf, 12 * n, 3 * n),        // float16 bits
-    rotations: new Uint8Array(buf, 18 * n, 4 * n),      // int8 bytes (w, x, y, z)
-    rgba: new Uint8Array(buf, 22 * n, 4 * n),
+    rotations: new Uint16Array(buf, 18 * n, 4 * n),     // int16 bits (w, x, y, z)
+    rgba: new Uint8Array(buf, 26 * n, 4 * n),
   };
 }
 
@@ -150,7 +150,7 @@ export class SplatRenderer {
   }
 
   setData(s, n) {
-    // two RGBA32UI texels per Gaussian: [x, y, z (float bits), rgba] [sx|sy, sz, quat, 0]
+    // two RGBA32UI texels per Gaussian: [x, y, z (float bits), rgba] [sx|sy, sz, qw|qx, qy|qz]
     const gl = this.gl;
     this.n = n;
     const rows = Math.max(1, Math.ceil((2 * n) / TEX_W));
@@ -158,13 +158,14 @@ export class SplatRenderer {
     const fbits = new Uint32Array(s.positions.buffer, s.positions.byteOffset, 3 * n);
     const rgba = new Uint32Array(n);
     new Uint8Array(rgba.buffer).set(s.rgba);
-    const rot = new Uint32Array(n);
-    new Uint8Array(rot.buffer).set(s.rotations);
+    const rot = new Uint32Array(2 * n);
+    new Uint16Array(rot.buffer).set(s.rotations);
     const sc = s.scales;
     for (let i = 0; i < n; i++) {
       const o = 8 * i, p = 3 * i;
       d[o] = fbits[p]; d[o + 1] = fbits[p + 1]; d[o + 2] = fbits[p + 2]; d[o + 3] = rgba[i];
-      d[o + 4] = sc[p] | (sc[p + 1] << 16); d[o + 5] = sc[p + 2]; d[o + 6] = rot[i];
+      d[o + 4] = sc[p] | (sc[p + 1] << 16); d[o + 5] = sc[p + 2];
+      d[o + 6] = rot[2 * i]; d[o + 7] = rot[2 * i + 1];
     }
     this._texture(this.dataTex, gl.RGBA32UI, TEX_W, rows, gl.RGBA_INTEGER, gl.UNSIGNED_INT, d);
     this.tintRows = Math.max(1, Math.ceil(n / TEX_W));
