@@ -40,7 +40,10 @@ class MeshParams:
     chart_min_width : the envelope chart widens no column less than this fraction of the leaf's
         largest half-width (limits the stretch at the base and the apex)
     supersample : the bake renders at this many times the texture size per axis and
-        box-filters down (premultiplied), then divides by the accumulated alpha
+        box-filters down (premultiplied), then divides by the accumulated alpha. 1 (was 2): at
+        the texel density's 2 texels per Gaussian spacing the render is already oversampled;
+        green pepper 100k, 512^2: ss 1 vs 2 PSNR 53.6 dB inside the leaf, cut-out IoU 0.9994,
+        mesh stage CPU 6.5 -> 3.0 s. Range 1..4.
     clean_outline : re-triangulate the sheet inside a smooth outline curve (constrained
         Delaunay, :func:`surface.remesh_sheet`); the fine serration stays in the alpha cut-out
     outline_grow : the clean outline grows out to the template splats' silhouette (alpha =
@@ -66,7 +69,7 @@ class MeshParams:
     texture_margin: float = 0.01
     uv_layout: str = "envelope"
     chart_min_width: float = 0.3
-    supersample: int = 2
+    supersample: int = 1
     clean_outline: bool = True
     outline_grow: float = 6.0
     lod_vertices: tuple | None = None
