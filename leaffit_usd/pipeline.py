@@ -174,9 +174,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     from leaffit_usd.io_util import file_sha256
     from leaffit_usd.splats import load_cloud
     from leaffit_usd.usd.assemble import DEFAULT_SHEET_OFFSET, asset_from_results
-    from leaffit_usd.runtime.evaluator import asset_leaves
-    from leaffit_usd.export.gltf import GLTF_FORMATS, GltfOptions, write_gltf
-    from leaffit_usd.usd.writer import LeafTextures, WriteResult, write_stage
+    from leaffit_usd.usd.writer import LeafTextures
 
     o = options or ConvertOptions()
     t_start = time.perf_counter()
@@ -208,7 +206,7 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         # file order; dropping it (and, below, the isolated input-frame cloud) keeps one full
         # copy of the Gaussians alive instead of three (~250 MB per million at SH degree 3)
         loaded = _Loaded(len(cloud_in), encode_classes(cloud_in, iso))
-        pot_src = _pot_gaussians(cloud_in, iso, frame) if o.pot else None
+        pot = _pot_mesh(cloud_in, iso, frame) if o.pot else None
         del cloud_in
         prep.loaded = None
         pts = np.asarray(cw.means, np.float64)
@@ -233,12 +231,6 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
         with T.stage("tint", "measuring per-leaf colour (tint)"):
             tints = measure_leaf_tints(cw, np.asarray(seg.labels), fits, template)
     params = _params_record(o, iso, int(cloud.file_index[root_index]))
-    pot = None
-    if pot_src is not None:
-        from leaffit_usd.mesh.pot import build_pot
-        pot = build_pot(*pot_src)
-        log.info("      pot: %s", "a lathe and a soil disc" if pot is not None else
-                 "isolation found no pot; none written")
     with T.stage("write", f"writing {output_path}"):
         asset = asset_from_results(
             template, fits, stem, frame, up_axis=str(o.up_axis).upper(),
@@ -248,17 +240,8 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
             extra_metadata={"input_name": input_path.name}, pot=pot)
         if tints is not None:
             asset.tints = tints.tints
-        textures = LeafTextures(template.front_texture, template.back_texture)
-        if output_path.suffix.lower() in GLTF_FORMATS:
-            g = write_gltf(output_path, asset, textures, GltfOptions(
-                instanced=o.instanced, texture_format=o.write.texture_format,
-                texture_max_size=int(o.write.texture_max_size), tint=o.tint))
-            result = WriteResult(path=output_path, files={"gltf": output_path}, sizes={"gltf": g.bytes})
-        else:
-            result = write_stage(output_path, asset, textures, o.write,
-                                 leaves=asset_leaves(asset, separate_sheets=True),
-                                 lod_leaves=[asset_leaves(asset.at_lod(k), separate_sheets=True)
-                                             for k in range(1, len(asset.lods) + 1)])
+        result = _write_output(output_path, asset, LeafTextures(template.front_texture,
+                                                                template.back_texture), o)
 
     report = _report(input_path, output_path, sha, result, {**T.timings, "total": round(
         time.perf_counter() - t_start, 4)}, cloud, loaded, iso, fits, template, asset, frame, root_index)
@@ -272,20 +255,40 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     return report
 
 
-def _pot_gaussians(cloud_in, iso, frame):
-    """What ``mesh.pot.build_pot`` takes from the capture, working frame: (pot means, pot colours,
-    soil means, soil colours, axis, centre), or None when isolation found no pot."""
-    from leaffit_usd.isolate import POT, SOIL
+def _write_output(output_path: Path, asset, textures, o: ConvertOptions):
+    """The asset written as ``output_path`` asks: a glTF / GLB, or the USD stage with its baked
+    leaves and levels of detail (atomic). Returns a ``usd.writer.WriteResult``."""
+    from leaffit_usd.export.gltf import GLTF_FORMATS, GltfOptions, write_gltf
+    from leaffit_usd.runtime.evaluator import asset_leaves
+    from leaffit_usd.usd.writer import WriteResult, write_stage
 
-    if iso.pot is None or not (np.asarray(iso.classes) == POT).any():
-        return None
+    if output_path.suffix.lower() in GLTF_FORMATS:
+        g = write_gltf(output_path, asset, textures, GltfOptions(
+            instanced=o.instanced, texture_format=o.write.texture_format,
+            texture_max_size=int(o.write.texture_max_size), tint=o.tint))
+        return WriteResult(path=output_path, files={"gltf": output_path}, sizes={"gltf": g.bytes})
+    return write_stage(output_path, asset, textures, o.write,
+                       leaves=asset_leaves(asset, separate_sheets=True),
+                       lod_leaves=[asset_leaves(asset.at_lod(k), separate_sheets=True)
+                                   for k in range(1, len(asset.lods) + 1)])
+
+
+def _pot_mesh(cloud_in, iso, frame):
+    """``mesh.pot.build_pot`` on the Gaussians isolation classed as pot and soil (working
+    frame), or None when isolation found no pot (logged)."""
+    from leaffit_usd.isolate import POT, SOIL
+    from leaffit_usd.mesh.pot import build_pot
+
     cls = np.asarray(iso.classes)
-    pts = np.asarray(cloud_in.means, np.float64)
-    pot, soil = cls == POT, cls == SOIL
-    axis = frame.rotation @ np.asarray(iso.pot["axis"], np.float64)
-    centre = frame.to_working(np.asarray(iso.pot["center"], np.float64)[None])[0]
-    return (frame.to_working(pts[pot]), cloud_in.colors[pot], frame.to_working(pts[soil]),
-            cloud_in.colors[soil], axis, centre)
+    pot = None
+    if iso.pot is not None and (cls == POT).any():
+        pts = np.asarray(cloud_in.means, np.float64)
+        p, s = cls == POT, cls == SOIL
+        pot = build_pot(frame.to_working(pts[p]), cloud_in.colors[p], frame.to_working(pts[s]),
+                        cloud_in.colors[s], frame.rotation @ np.asarray(iso.pot["axis"], np.float64),
+                        frame.to_working(np.asarray(iso.pot["center"], np.float64)[None])[0])
+    log.info("      pot: %s", "a lathe and a soil disc" if pot is not None else "none found")
+    return pot
 
 
 def _params_record(o: ConvertOptions, iso, root_gaussian: int) -> dict:

@@ -106,6 +106,57 @@ class GltfResult:
     triangles: int
 
 
+def _wind_instance_attributes(b, wind, G: np.ndarray, rG: np.ndarray) -> dict:
+    """EXT_mesh_gpu_instancing attributes of the wind (``usd.wind``): _WINDPIVOT, _WINDAXIS
+    (glTF frame; G asset -> glTF, rG its rotation) and _WIND = (0, bend, phase) per leaf."""
+    pivots = np.asarray(wind.pivots, np.float64) @ G[:3, :3].T + G[:3, 3]
+    L = len(pivots)
+    return {"_WINDPIVOT": b.accessor(pivots.astype(np.float32), "VEC3", None),
+            "_WINDAXIS": b.accessor((np.asarray(wind.axes, np.float64) @ rG.T).astype(np.float32), "VEC3", None),
+            "_WIND": b.accessor(np.column_stack([np.zeros(L), wind.leaf_bend, wind.phases]).astype(np.float32),
+                                "VEC3", None)}
+
+
+def _stem_node(b, asset, G: np.ndarray, wind, stem_mat: int, children: list, counts: dict) -> None:
+    """The stem as a node (appended to ``children``) with its wind bend per vertex (_WIND)."""
+    if not (len(asset.stem_points) and len(asset.stem_faces)):
+        return
+    sv = np.asarray(asset.stem_points, np.float64) @ G[:3, :3].T + G[:3, 3]
+    sf = np.asarray(asset.stem_faces, np.int64)
+    attrs = {"POSITION": b.accessor(sv.astype(np.float32), "VEC3", minmax=True),
+             "NORMAL": b.accessor(_unit_normals(sv, sf), "VEC3"),
+             "_WIND": b.accessor(np.column_stack([np.zeros(len(sv)), wind.stem_bend,
+                                                  np.zeros(len(sv))]).astype(np.float32), "VEC3")}
+    prim = b.g.Primitive(attributes=b.g.Attributes(**attrs), indices=b.indices(sf, len(sv)),
+                         material=stem_mat)
+    children.append(b.node(name="Stem", mesh=b.mesh("Stem", [prim])))
+    counts["vertices"] += len(sv)
+    counts["triangles"] += len(sf)
+
+
+def _pot_nodes(b, pot, G: np.ndarray, children: list, counts: dict) -> None:
+    """The Pot and Soil meshes (``mesh.pot``; convert --pot) as nodes (appended to ``children``),
+    vertex-coloured (COLOR_0, linear) on white; G : asset -> glTF frame."""
+    if pot is None:
+        return
+    for part, pts, faces, cols in (("Pot", pot.pot_points, pot.pot_faces, pot.pot_colors),
+                                   ("Soil", pot.soil_points, pot.soil_faces, pot.soil_colors)):
+        if not len(pts) or not len(faces):
+            continue
+        pv = np.asarray(pts, np.float64) @ G[:3, :3].T + G[:3, 3]
+        pf = np.asarray(faces, np.int64)
+        c = np.asarray(cols, np.float64)
+        lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+        attrs = {"POSITION": b.accessor(pv.astype(np.float32), "VEC3", minmax=True),
+                 "NORMAL": b.accessor(_unit_normals(pv, pf), "VEC3"),
+                 "COLOR_0": b.accessor(lin, "VEC3")}
+        prim = b.g.Primitive(attributes=b.g.Attributes(**attrs), indices=b.indices(pf, len(pv)),
+                             material=b.material(part, (1.0, 1.0, 1.0), None, False))
+        children.append(b.node(name=part, mesh=b.mesh(part, [prim])))
+        counts["vertices"] += len(pv)
+        counts["triangles"] += len(pf)
+
+
 def asset_to_gltf(asset: PlantAsset) -> np.ndarray:
     """(4, 4) float64 similarity, asset frame -> glTF frame (metres, +Y up, right-handed):
     metersPerUnit x (identity for a Y-up stage; (x, y, z) -> (x, z, -y) for a Z-up one)."""
@@ -360,11 +411,7 @@ def build_gltf(asset: PlantAsset, textures=None, options: GltfOptions | None = N
                                     "VEC3", None)}
         if tints is not None:
             inst["_COLOR_0"] = b.accessor(tints, "VEC3", None)
-        pivots = np.asarray(wind.pivots, np.float64) @ G[:3, :3].T + G[:3, 3]
-        inst["_WINDPIVOT"] = b.accessor(pivots.astype(np.float32), "VEC3", None)
-        inst["_WINDAXIS"] = b.accessor((np.asarray(wind.axes, np.float64) @ rG.T).astype(np.float32), "VEC3", None)
-        inst["_WIND"] = b.accessor(np.column_stack([np.zeros(L), wind.leaf_bend, wind.phases]).astype(np.float32),
-                                   "VEC3", None)
+        inst.update(_wind_instance_attributes(b, wind, G, rG))
         attrs["_WIND"] = b.accessor(np.column_stack([wind.flutter, np.zeros((len(pts), 2))]).astype(np.float32),
                                     "VEC3")
         children.append(b.node(name="Leaves", mesh=b.mesh("TemplateLeaf", prims),
@@ -372,36 +419,8 @@ def build_gltf(asset: PlantAsset, textures=None, options: GltfOptions | None = N
         b.gltf.extensionsUsed.append(INSTANCING_EXT)
         counts["vertices"] += len(pts) * L
         counts["triangles"] += len(f) * L
-    if len(asset.stem_points) and len(asset.stem_faces):
-        sv = np.asarray(asset.stem_points, np.float64) @ G[:3, :3].T + G[:3, 3]
-        sf = np.asarray(asset.stem_faces, np.int64)
-        attrs = {"POSITION": b.accessor(sv.astype(np.float32), "VEC3", minmax=True),
-                 "NORMAL": b.accessor(_unit_normals(sv, sf), "VEC3"),
-                 "_WIND": b.accessor(np.column_stack([np.zeros(len(sv)), wind.stem_bend,
-                                                      np.zeros(len(sv))]).astype(np.float32), "VEC3")}
-        prim = b.g.Primitive(attributes=b.g.Attributes(**attrs), indices=b.indices(sf, len(sv)),
-                             material=stem_mat)
-        children.append(b.node(name="Stem", mesh=b.mesh("Stem", [prim])))
-        counts["vertices"] += len(sv)
-        counts["triangles"] += len(sf)
-    pot = getattr(asset, "pot", None)
-    if pot is not None:
-        for part, pts, faces, cols in (("Pot", pot.pot_points, pot.pot_faces, pot.pot_colors),
-                                       ("Soil", pot.soil_points, pot.soil_faces, pot.soil_colors)):
-            if not len(pts) or not len(faces):
-                continue
-            pv = np.asarray(pts, np.float64) @ G[:3, :3].T + G[:3, 3]
-            pf = np.asarray(faces, np.int64)
-            c = np.asarray(cols, np.float64)
-            lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
-            attrs = {"POSITION": b.accessor(pv.astype(np.float32), "VEC3", minmax=True),
-                     "NORMAL": b.accessor(_unit_normals(pv, pf), "VEC3"),
-                     "COLOR_0": b.accessor(lin, "VEC3")}
-            prim = b.g.Primitive(attributes=b.g.Attributes(**attrs), indices=b.indices(pf, len(pv)),
-                                 material=b.material(part, (1.0, 1.0, 1.0), None, False))
-            children.append(b.node(name=part, mesh=b.mesh(part, [prim])))
-            counts["vertices"] += len(pv)
-            counts["triangles"] += len(pf)
+    _stem_node(b, asset, G, wind, stem_mat, children, counts)
+    _pot_nodes(b, getattr(asset, "pot", None), G, children, counts)
     root = b.node(name=name, children=children, extras={"leaffit": extras})
     return b.finish(root), counts
 

@@ -130,29 +130,9 @@ def asset_from_results(template: TemplateMesh, fits: LeafFits, stem: Stem | None
     offset = float(sheet_offset) * extent
     tpl_points = pts.copy()
 
-    def stem_arrays(m):
-        if m is None or not len(m.points):
-            return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), None
-        c = getattr(m, "colors", None)
-        return ((s_a * np.asarray(m.points, np.float64) @ r_a.T).astype(np.float32),
-                np.asarray(m.faces, np.int32), None if c is None else np.asarray(c, np.float32))
-
-    stem_points, stem_faces, stem_colors = stem_arrays(stem)
-    skeleton, skeleton_parents = (np.zeros((0, 3)), np.zeros(0, np.int32)) if stem is None else \
-        skeleton_from_segments(stem.starts, stem.ends, stem.parent)
-    skeleton = (s_a * np.asarray(skeleton, np.float64) @ r_a.T).astype(np.float32)
-    lods = []
-    t_lods = list(getattr(template, "lods", []) or [])
-    s_lods = list(getattr(stem, "lods", []) or []) if stem is not None else []
-    for k in range(max(len(t_lods), len(s_lods))):
-        t = t_lods[k] if k < len(t_lods) else template
-        sp, sf, sc = stem_arrays(s_lods[k]) if k < len(s_lods) else (stem_points, stem_faces, stem_colors)
-        lods.append(AssetLOD(template_points=np.asarray(t.points, np.float32),
-                             template_faces=np.asarray(t.faces, np.int32),
-                             template_normals=np.asarray(t.normals, np.float32),
-                             template_uvs=np.asarray(t.uvs, np.float32),
-                             template_side=np.asarray(t.side, np.uint8),
-                             stem_points=sp, stem_faces=sf, stem_colors=sc))
+    stem_points, stem_faces, stem_colors = _stem_arrays(stem, s_a, r_a)
+    skeleton, skeleton_parents = _skeleton(stem, s_a, r_a)
+    lods = _asset_lods(template, stem, s_a, r_a)
 
     metadata = {
         "tool": "leaffit-usd",
@@ -195,6 +175,43 @@ def asset_from_results(template: TemplateMesh, fits: LeafFits, stem: Stem | None
         skeleton_parents=skeleton_parents,
         pot=None if pot is None else _pot_to_asset(pot, s_a, r_a),
     )
+
+
+def _stem_arrays(m, s_a: float, r_a: np.ndarray):
+    """A stem mesh (LOD) in the asset frame: (points (P, 3) float32, faces (G, 3) int32, colours
+    (P, 3) float32 or None); empty without one."""
+    if m is None or not len(m.points):
+        return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), None
+    c = getattr(m, "colors", None)
+    return ((s_a * np.asarray(m.points, np.float64) @ r_a.T).astype(np.float32),
+            np.asarray(m.faces, np.int32), None if c is None else np.asarray(c, np.float32))
+
+
+def _asset_lods(template, stem, s_a: float, r_a: np.ndarray) -> list:
+    """The coarser levels of detail (AssetLOD per level; a level the template or the stem lacks
+    repeats LOD0's)."""
+    t_lods = list(getattr(template, "lods", []) or [])
+    s_lods = list(getattr(stem, "lods", []) or []) if stem is not None else []
+    lods = []
+    for k in range(max(len(t_lods), len(s_lods))):
+        t = t_lods[k] if k < len(t_lods) else template
+        sp, sf, sc = _stem_arrays(s_lods[k] if k < len(s_lods) else stem, s_a, r_a)
+        lods.append(AssetLOD(template_points=np.asarray(t.points, np.float32),
+                             template_faces=np.asarray(t.faces, np.int32),
+                             template_normals=np.asarray(t.normals, np.float32),
+                             template_uvs=np.asarray(t.uvs, np.float32),
+                             template_side=np.asarray(t.side, np.uint8),
+                             stem_points=sp, stem_faces=sf, stem_colors=sc))
+    return lods
+
+
+def _skeleton(stem, s_a: float, r_a: np.ndarray):
+    """The stem skeleton (``usd.wind.skeleton_from_segments``) in the asset frame: (points (S, 3)
+    float32, parents (S,) int32); empty without a stem."""
+    if stem is None:
+        return np.zeros((0, 3), np.float32), np.zeros(0, np.int32)
+    pts, parents = skeleton_from_segments(stem.starts, stem.ends, stem.parent)
+    return (s_a * np.asarray(pts, np.float64) @ r_a.T).astype(np.float32), parents
 
 
 def _pot_to_asset(pot, s_a: float, r_a: np.ndarray):
