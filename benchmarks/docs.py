@@ -67,6 +67,9 @@ RESULTS: tuple[Result, ...] = (
     Result("real.json", "real", f"{PY} benchmarks/real.py",
            "The real houseplant capture converted with no options: up error, cue, leaves against a "
            "hand-audited count, asset vertices below the soil, removed classes.", "isolation.md"),
+    Result("pot.json", "pot", f"{PY} benchmarks/pot.py",
+           "convert --pot: the pot mesh's two-sided Chamfer distance to the pot's Gaussians over the "
+           "plant height (capture-like samples, the --scene plants, the real houseplant).", "isolation.md"),
     Result("capture_stats.json", "capture_stats", f"{PY} benchmarks/capture_stats.py",
            "Per-Gaussian statistics of the real houseplant capture beside the generator's capture-realism "
            "and ideal plants.", "isolation.md"),
