@@ -67,6 +67,9 @@ RESULTS: tuple[Result, ...] = (
     Result("real.json", "real", f"{PY} benchmarks/real.py",
            "The real houseplant capture converted with no options: up error, cue, leaves against a "
            "hand-audited count, asset vertices below the soil, removed classes.", "isolation.md"),
+    Result("editor.json", "editor", f"{PY} -m benchmarks.editor",
+           "The segmentation editor: edit -> fitted-leaf preview latency on a 100k plant, and a 1M "
+           "capture's open time (URL, first frame of splats, tools ready).", "editor.md"),
     Result("pot.json", "pot", f"{PY} benchmarks/pot.py",
            "convert --pot: the pot mesh's two-sided Chamfer distance to the pot's Gaussians over the "
            "plant height (capture-like samples, the --scene plants, the real houseplant).", "isolation.md"),
