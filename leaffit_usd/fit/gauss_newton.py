@@ -150,20 +150,20 @@ def gauss_newton(template, leaves: list, p: np.ndarray, q0: np.ndarray, params: 
     outline = _OutlineTerm(outlines, X, p, params) if outlines is not None else None
     I3 = np.eye(3)
     for it in range(params.refine):
-        Xd = np.einsum("mk,bkc->bmc", A, q)                             # (B, M, 3)
+        Xd = np.matmul(A, q)                             # (B, M, 3)
         ia = _pair(Y.trees, Xd)
         ib = _back_pair(Xd, Y)
         Ya = np.take_along_axis(Y.pts, ia[..., None], 1)                # (B, M, 3)
         Na = np.take_along_axis(Nrm, ia[..., None], 1)
         Ab = A[ib] * Y.w[..., None]                                     # (B, n, K), weighted
-        H_pt = H_tt[None] + np.einsum("bnk,bnl->bkl", A[ib], Ab) + H_lm[None]
-        g_pt = np.einsum("mk,bmc->bkc", A, Ya) / M + np.einsum("bnk,bnc->bkc", Ab, Y.pts) + g_lm
+        H_pt = H_tt[None] + np.matmul(A[ib].transpose(0, 2, 1), Ab) + H_lm[None]
+        g_pt = np.matmul(A.T, Ya) / M + np.matmul(Ab.transpose(0, 2, 1), Y.pts) + g_lm
         J = (A[None, :, :, None] * Na[:, :, None, :]).reshape(B, M, 3 * K)   # row a: n_a^T A_a
         r = (Na * Ya).sum(-1)                                           # (B, M)
         H = params.lam * _kron3(H_pt, I3) + params.plane_weight * np.matmul(
             J.transpose(0, 2, 1), J) / M
-        g = params.lam * g_pt.reshape(B, -1) + params.plane_weight * np.einsum(
-            "bmj,bm->bj", J, r) / M
+        g = params.lam * g_pt.reshape(B, -1) + params.plane_weight * np.matmul(
+            J.transpose(0, 2, 1), r[..., None])[..., 0] / M
         if outline is not None:
             dH, dg = outline.normal_equations(q)
             H, g = H + dH, g + dg
@@ -173,7 +173,7 @@ def gauss_newton(template, leaves: list, p: np.ndarray, q0: np.ndarray, params: 
         H = H + D[:, :, None] * np.eye(3 * K)[None]
         q = np.linalg.solve(H, (g + D * q.reshape(B, -1))[..., None])[..., 0].reshape(B, K, 3)
     # the objective at the result, its neighbours re-paired there
-    Xd = np.einsum("mk,bkc->bmc", A, q)
+    Xd = np.matmul(A, q)
     ia, ib = _pair(Y.trees, Xd), _back_pair(Xd, Y)
     d_a = Xd - np.take_along_axis(Y.pts, ia[..., None], 1)
     d_b = np.take_along_axis(Xd, ib[..., None], 1) - Y.pts
@@ -211,13 +211,13 @@ class _OutlineTerm:  # noqa: D101 (doc below)
         if not self.on or not self.use.any():
             return 0.0, 0.0
         A_o = self.A_o
-        Xo = np.einsum("nk,bkc->bnc", A_o, q[:, :, :2])                 # (B, n, 2)
+        Xo = np.matmul(A_o, q[:, :, :2])                 # (B, n, 2)
         io = _pair(self.Y.trees, Xo)
         Yi = np.take_along_axis(self.Y.pts, io[..., None], 1)
         ic = _back_pair(Xo, self.Y)
         Ac = A_o[ic] * self.Y.w[..., None]
-        H_o = self.H_oo[None] + np.einsum("bnk,bnl->bkl", A_o[ic], Ac)
-        g_o = np.einsum("nk,bnc->bkc", A_o, Yi) / len(A_o) + np.einsum("bnk,bnc->bkc", Ac, self.Y.pts)
+        H_o = self.H_oo[None] + np.matmul(A_o[ic].transpose(0, 2, 1), Ac)
+        g_o = np.matmul(A_o.T, Yi) / len(A_o) + np.matmul(Ac.transpose(0, 2, 1), self.Y.pts)
         m = self.use.astype(np.float64)
         dH = self.w * m[:, None, None] * _kron3(H_o, self.E_xy)
         dg = self.w * m[:, None] * np.concatenate([g_o, np.zeros((B, K, 1))], -1).reshape(B, -1)
@@ -227,7 +227,7 @@ class _OutlineTerm:  # noqa: D101 (doc below)
         """(B,) the outline term's value at targets q (B, K, 3) (0 for a leaf without one)."""
         if not self.on or not self.use.any():
             return np.zeros(len(q))
-        Xo = np.einsum("nk,bkc->bnc", self.A_o, q[:, :, :2])
+        Xo = np.matmul(self.A_o, q[:, :, :2])
         d_o = Xo - np.take_along_axis(self.Y.pts, _pair(self.Y.trees, Xo)[..., None], 1)
         d_c = np.take_along_axis(Xo, _back_pair(Xo, self.Y)[..., None], 1) - self.Y.pts
         e = (d_o ** 2).sum(-1).mean(1) + ((d_c ** 2).sum(-1) * self.Y.w).sum(1)
