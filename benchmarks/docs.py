@@ -176,9 +176,14 @@ RESULTS: tuple[Result, ...] = (
     Result("stem.json", "stem", f"{PY} benchmarks/stem.py --work /tmp/stem9/base",
            "Stem surface error, suite and paper8 (the run that fixed the table's figures; busy machine).",
            "mesh.md"),
-    Result("size.json", "size", f"{PY} benchmarks/size.py",
-           "Full convert of every sample with defaults: .usdz and .usda sizes against the PLY, "
-           "validation errors.", "scale.md"),
+    Result("size.json", "size", f"{PY} benchmarks/size.py --sets paper8,real",
+           "Full convert with defaults of the paper8 plants and the real houseplant: .usdz and "
+           ".glb against the input as PLY, SPZ and .splat, the .usdz's parts, validation errors.",
+           "scale.md"),
+    Result("profile_convert.json", "profile_convert", f"{PY} benchmarks/profile_convert.py",
+           "Each stage's time and its hot spots (cProfile) for the 100k green pepper, the real "
+           "houseplant and the 1M green pepper (busy machine: ratios, not absolute times).",
+           "scale.md"),
     Result("scale_seed1_fe4ab1a.json", "scale",
            f"{PY} benchmarks/scale.py --seeds 1 --sizes 100000 1000000 5000000 --labels auto "
            "--out benchmarks/results/scale_seed1_fe4ab1a.json",
