@@ -180,6 +180,11 @@ RESULTS: tuple[Result, ...] = (
            "Full convert with defaults of the paper8 plants and the real houseplant: .usdz and "
            ".glb against the input as PLY, SPZ and .splat, the .usdz's parts, validation errors.",
            "scale.md"),
+    Result("render_fast_compact.json", "render",
+           f"{PY} benchmarks/render.py --plants green_pepper,rubber_tree,golden_pothos,p1_capsicum,p2_soybean "
+           "--out benchmarks/results/render_fast_compact.json --compare BEFORE.json",
+           "Render fidelity after the Gauss-Newton fit, the texel-density textures and jpg+mask "
+           "(rubber tree, paper8 capsicum and soybean).", "render.md"),
     Result("profile_convert.json", "profile_convert", f"{PY} benchmarks/profile_convert.py",
            "Each stage's time and its hot spots (cProfile) for the 100k green pepper, the real "
            "houseplant and the 1M green pepper (busy machine: ratios, not absolute times).",
@@ -221,6 +226,11 @@ RESULTS: tuple[Result, ...] = (
            "--texture-size 256\"",
            "leaffit-usd batch on 8 generated plants + a truncated + an empty capture: validation, failures, "
            "jobs scaling, rerun, byte-identity.", "batch.md"),
+    Result("render_fast_compact.json", "render",
+           f"{PY} benchmarks/render.py --plants green_pepper,rubber_tree,golden_pothos,p1_capsicum,p2_soybean "
+           "--out benchmarks/results/render_fast_compact.json --compare BEFORE.json",
+           "Render fidelity after the Gauss-Newton fit, the texel-density textures and jpg+mask "
+           "(rubber tree, paper8 capsicum and soybean).", "render.md"),
     Result("profile_convert.json", "profile_convert", f"{PY} benchmarks/profile_convert.py",
            "Where a conversion spends its time: each stage's wall time and its hot spots (cProfile).",
            "scale.md"),
