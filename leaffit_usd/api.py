@@ -254,12 +254,15 @@ class Plant:
     def _baked_payload_path(self):
         """The baked payload file the 'baked' variant loads (None if the stage has none)."""
         root = self.stage.GetDefaultPrim()
-        for spec in self.stage.GetRootLayer().GetPrimAtPath(root.GetPath()).variantSets.values():
-            for variant in spec.variants.values():
-                baked = variant.primSpec.nameChildren.get("BakedLeaves")
-                if baked is not None:
-                    for ref in baked.payloadList.GetAddedOrExplicitItems():
-                        return Path(self.stage.GetRootLayer().ComputeAbsolutePath(ref.assetPath))
+        # the root layer, or the variants sublayer beside a .usda root (usd.writer)
+        for layer in self.stage.GetLayerStack(includeSessionLayers=False):
+            prim_spec = layer.GetPrimAtPath(root.GetPath())
+            for spec in (prim_spec.variantSets.values() if prim_spec else []):
+                for variant in spec.variants.values():
+                    baked = variant.primSpec.nameChildren.get("BakedLeaves")
+                    if baked is not None:
+                        for ref in baked.payloadList.GetAddedOrExplicitItems():
+                            return Path(layer.ComputeAbsolutePath(ref.assetPath))
         return None
 
     def _check_leaf(self, j) -> int:

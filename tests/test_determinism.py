@@ -52,7 +52,8 @@ def test_two_conversions_identical_bytes_across_thread_counts(tmp_path):
             assert torch.get_num_threads() == threads      # the caller's setting is restored
     finally:
         torch.set_num_threads(saved)
-    assert set(digests[0]) == {"plant.usda", "plant.geom.usdc", "plant.baked.usdc", "textures/plant.front.jpg",
+    assert set(digests[0]) == {"plant.usda", "plant.geom.usdc", "plant.baked.usdc", "plant.variants.usdc",
+                               "textures/plant.front.jpg",
                                "textures/plant.back.jpg", "textures/plant.front.mask.png",
                                "textures/plant.back.mask.png"}
     assert digests[0] == digests[1]
@@ -101,7 +102,7 @@ def test_the_asset_does_not_depend_on_the_file_order(tmp_path):
         text = (out / "plant.usda").read_text()
         stages.append(re.sub(r'(inputSha256|input_sha256|input_name|root_gaussian)("?\s*[:=]\s*)("[^"]*"|\d+)',
                              r"\1\2X", text))
-    assert digests[0] == digests[1] and len(digests[0]) == 6
+    assert digests[0] == digests[1] and len(digests[0]) == 7
     assert stages[0] == stages[1]
     assert reports[0]["fit"]["per_leaf"] == reports[1]["fit"]["per_leaf"]
     root_a, root_b = (r["params"]["root_gaussian"] for r in reports)

@@ -173,9 +173,14 @@ def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
         rel["geometry"] = f"{stem}.geom.usdc"
         has_alpha = "" if textures is None else {"png": "a", "jpg+mask": "mask"}.get(
             options.texture_format, "")
+        # a text stage keeps only the interface as text: the variants' arrays (the LODs) go to a
+        # crate sublayer beside it (the same layer stack, so the same composed stage)
+        variants_rel = f"{stem}.variants.usdc" if ext == ".usda" and (baked_rel or asset.lods) else None
+        if variants_rel:
+            rel["variants"] = variants_rel
         _write_main_layer(tmp / main_rel, asset, leaves, name, front_tex, back_tex, has_alpha,
                           "./" + baked_rel if baked_rel else None, bool(lod_leaves),
-                          tmp / rel["geometry"], "./" + rel["geometry"])
+                          tmp / rel["geometry"], "./" + rel["geometry"], variants_rel)
         result = WriteResult(path=path)
         if ext == ".usdz":
             pkg = tmp / path.name
@@ -524,7 +529,7 @@ def _stage_units(stage, a: PlantAsset) -> None:
 
 def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, front_tex: str,
                       back_tex: str, has_alpha: str, baked_rel: str | None, baked_lods: bool,
-                      geom_out: Path, geom_rel: str) -> None:
+                      geom_out: Path, geom_rel: str, variants_rel: str | None = None) -> None:
     """Two layers: ``geom_out`` (Looks, Leaves, Stem under /<name>, its defaultPrim) and the root
     layer ``out``: the /<name> interface prim (kind, assetInfo, customData, variant sets) whose
     payload ``geom_rel`` brings the geometry in, so a scene can load the plant lazily. Variant
@@ -532,7 +537,7 @@ def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, f
     # the geometry stage stays open while the root layer refers to its template Mesh
     geo, tmpl = _write_geometry_layer(geom_out, out.name, a, leaves, name, front_tex, back_tex,
                                       has_alpha)
-    _write_root_layer(out, a, name, geom_rel, baked_rel, baked_lods, tmpl)
+    _write_root_layer(out, a, name, geom_rel, baked_rel, baked_lods, tmpl, variants_rel)
     del geo
 
 
@@ -620,10 +625,11 @@ def _author_leaf_instancer(stage, inst_path: str, a: PlantAsset, leaves: np.ndar
 
 
 def _write_root_layer(out: Path, a: PlantAsset, name: str, geom_rel: str, baked_rel: str | None,
-                      baked_lods: bool, tmpl) -> None:
+                      baked_lods: bool, tmpl, variants_rel: str | None = None) -> None:
     """The root layer ``out``: the asset's interface; the geometry arrives through the payload
     ``geom_rel``; the leafRepresentation and LOD variant sets. tmpl : the template leaf Mesh of
-    the geometry layer."""
+    the geometry layer. variants_rel : author the variant sets in this crate sublayer (beside
+    ``out``) instead of the root layer: a .usda root stays a small, readable text file."""
     from pxr import Kind, Sdf, Usd, UsdGeom
 
     root = f"/{name}"
@@ -637,10 +643,19 @@ def _write_root_layer(out: Path, a: PlantAsset, name: str, geom_rel: str, baked_
     Usd.ModelAPI(plant).SetAssetIdentifier(Sdf.AssetPath(f"./{out.name}"))
     plant.SetCustomDataByKey("leaffit", _custom_data(a))
     plant.GetPayloads().AddPayload(geom_rel)
+    vlayer = None
+    if variants_rel:
+        vlayer = Sdf.Layer.CreateNew(str(out.parent / variants_rel))
+        stage.GetRootLayer().subLayerPaths.append("./" + variants_rel)
+        stage.SetEditTarget(Usd.EditTarget(vlayer))
     if baked_rel:
         _author_baked_variant(stage, plant, a, root, baked_rel, baked_lods)
     if a.lods:
         _author_lod_variants(stage, plant, a, tmpl, root, bool(baked_rel) and baked_lods)
+    if vlayer is not None:
+        vlayer.documentation = f"LeafFit plant variants (LOD, leafRepresentation) of ./{out.name}"
+        vlayer.Save()
+        stage.SetEditTarget(Usd.EditTarget(stage.GetRootLayer()))
     stage.GetRootLayer().documentation = (
         "LeafFit plant: one template leaf Mesh deformed per instance by affine MLS "
         "(LeafFitMLSDeformerAPI); written by leaffit-usd")
@@ -682,7 +697,7 @@ def _author_lod_variants(stage, plant, a: PlantAsset, tmpl, root: str, baked: bo
     from pxr import Sdf, Usd, UsdGeom, Vt
 
     # local opinions are stronger than variant opinions: LOD0's geometry moves into its variant
-    layer = stage.GetRootLayer()
+    layer = stage.GetEditTarget().GetLayer()
     tpath = tmpl.GetPath()
     varying = {tpath: _TEMPLATE_ATTRS, tpath.AppendChild("front"): ("indices",),
                tpath.AppendChild("back"): ("indices",)}

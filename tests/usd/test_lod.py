@@ -100,3 +100,28 @@ def test_stem_material_reads_vertex_colours(tmp_path, lod_asset):
     # linear fallback = the mean colour (sRGB 0.8, 0.2, 0.1 -> linear)
     fb = np.asarray(reader.GetInput("fallback").Get())
     assert fb == pytest.approx([0.6038, 0.0331, 0.0100], abs=2e-3)
+
+
+def test_a_usda_root_stays_text_small_with_its_variants_in_a_crate_sublayer(tmp_path, lod_asset):
+    """.usda output: the root layer is the interface only (no arrays); the LOD and
+    leafRepresentation variants, with the coarser levels' arrays, are in ``p.variants.usdc``,
+    a sublayer of the root (one layer stack), so the composed stage is the .usdc one's."""
+    from pxr import Sdf, Usd, UsdGeom
+
+    a, tex = lod_asset
+    _write(tmp_path / "p.usda", a, tex, W.WriteOptions(baked=True))
+    _write(tmp_path / "c" / "p.usdc", a, tex, W.WriteOptions(baked=True))
+    root = Sdf.Layer.FindOrOpen(str(tmp_path / "p.usda"))
+    assert list(root.subLayerPaths) == ["./p.variants.usdc"]
+    assert "point3f[]" not in (tmp_path / "p.usda").read_text()
+    assert Sdf.Layer.FindOrOpen(str(tmp_path / "p.variants.usdc")).GetFileFormat().formatId == "usdc"
+    assert not (tmp_path / "c" / "p.variants.usdc").exists()   # a crate root holds them itself
+    for k in range(3):
+        counts = []
+        for path in (tmp_path / "p.usda", tmp_path / "c" / "p.usdc"):
+            stage = Usd.Stage.Open(str(path))
+            select_variant(stage, "LOD", f"LOD{k}")
+            r = stage.GetDefaultPrim().GetPath()
+            counts.append(len(UsdGeom.Mesh(stage.GetPrimAtPath(f"{r}/Stem")).GetPointsAttr().Get()))
+        assert counts[0] == counts[1]
+    assert validate_file(tmp_path / "p.usda").count("error") == 0
