@@ -37,25 +37,22 @@ from leaffit_usd.usd import schema as S
 from leaffit_usd.version import __version__
 from leaffit_usd.usd.asset import PlantAsset
 from leaffit_usd.usd.vt import extent, matrix4d, quat_arrays, vec3f_array
-from leaffit_usd.usd.wind import template_flutter, wind_data
+from leaffit_usd.usd.baked import (baked_topology, leaf_tints, set_leaf_tint,  # noqa: F401 (API)
+                                   write_baked_layer)
+from leaffit_usd.usd.materials import (MASK_SUFFIX, STEM_COLOR, TINT_PRIMVAR,  # noqa: F401 (API)
+                                       make_material, make_stem_material, mask_path)
+from leaffit_usd.usd.parts import (author_pot, author_stem_wind, author_template_mesh, author_wind,
+                                   check_leaves, face_sides, set_stem_geometry, set_template_geometry,
+                                   stage_units)
+from leaffit_usd.usd.wind import wind_data
 
 log = logging.getLogger("leaffit_usd")
 
 FORMATS = (".usda", ".usdc", ".usd", ".usdz")
+ZIP_EPOCH = 946728000   # 2000-01-01 12:00 UTC: fixed timestamps inside .usdz packages
 #: "jpg+mask": colour as JPEG, the alpha cut-out as a grey PNG beside it (``mask_path``);
 #: "jpg": colour only (the mesh outline is the leaf's outline); "png": one RGBA file
 TEXTURE_FORMATS = ("jpg+mask", "jpg", "png")
-MASK_SUFFIX = ".mask.png"
-
-
-def mask_path(texture: str) -> str:
-    """The alpha mask written beside a ``jpg+mask`` colour texture (same folder, same stem):
-    ``./textures/p.front.jpg`` -> ``./textures/p.front.mask.png``."""
-    suffix = Path(texture).suffix
-    return (texture[:-len(suffix)] if suffix else texture) + MASK_SUFFIX
-STEM_COLOR = (0.23, 0.30, 0.12)   # linear RGB of the stem material
-LEAF_ROUGHNESS = 0.6
-ZIP_EPOCH = 946728000   # 2000-01-01 12:00 UTC: fixed timestamps inside .usdz packages
 
 
 @dataclass
@@ -142,7 +139,7 @@ def write_stage(path, asset: PlantAsset, textures: LeafTextures | None = None,
         raise ParameterError("output", f"a file ending in {', '.join(FORMATS)}", str(path))
     options.validate()
     _check_asset(asset)
-    leaves = _check_leaves(asset, leaves)
+    leaves = check_leaves(asset, leaves)
 
     from pxr import Tf
 
@@ -246,19 +243,6 @@ def _check_asset(a: PlantAsset) -> None:
 # textures
 
 
-def _check_leaves(a: PlantAsset, leaves) -> np.ndarray:
-    """The explicit leaves as a (L, V, 3) float32 array, or ParameterError."""
-    L, V = a.n_leaves, len(a.template_points)
-    if leaves is None and L == 0:
-        return np.zeros((0, V, 3), np.float32)
-    if leaves is None:
-        raise ParameterError("leaves", "the explicit leaves (runtime.evaluator.asset_leaves)", None)
-    arr = np.asarray(leaves)
-    if arr.shape != (L, V, 3) or not np.isfinite(arr).all():
-        raise ParameterError("leaves", f"a finite ({L}, {V}, 3) array", arr.shape)
-    return arr.astype(np.float32)
-
-
 def _alpha_of(img: np.ndarray) -> np.ndarray:
     """(H, W, 1) uint8 alpha of an (H, W, 3|4) uint8 texture (255 without an alpha channel)."""
     img = np.asarray(img)
@@ -281,250 +265,6 @@ def _write_texture(path: Path, img: np.ndarray, options: WriteOptions) -> None:
 # main layer
 
 
-TINT_PRIMVAR = "leaffit:tint"   # color3f per instance (PointInstancer) / per leaf Mesh (baked)
-# wind (usd.wind): per instance on the PointInstancer, per vertex on the stem
-WIND_PIVOT, WIND_AXIS = "leaffit:windPivot", "leaffit:windAxis"
-WIND_NODE, WIND_PHASE, WIND_BEND = "leaffit:windNode", "leaffit:windPhase", "leaffit:windBend"
-WIND_FLUTTER = "leaffit:windFlutter"   # per vertex, baked leaves
-
-
-def make_material(stage, path: str, texture: str | None, color, has_alpha: bool | str = False,
-                  tint: bool = False):
-    """UsdPreviewSurface material; with a texture, diffuseColor (and opacity) read it via primvars:st.
-
-    has_alpha : False / "" (opaque), True / "a" (opacity = the texture's alpha) or "mask"
-        (opacity = the grey mask file beside the texture, :func:`mask_path`, its r channel);
-        either alpha with opacityThreshold 0.5 (a cut-out).
-
-    tint : multiply the texture by the per-leaf primvar ``leaffit:tint`` (color3f, linear): a
-        UsdPrimvarReader_float3 (fallback (1, 1, 1)) feeds UsdUVTexture's ``scale``, the one
-        multiplication UsdPreviewSurface networks have (rgb = texel * scale + bias)."""
-    from pxr import Gf, Sdf, UsdShade
-
-    mat = UsdShade.Material.Define(stage, path)
-    surf = UsdShade.Shader.Define(stage, f"{path}/PreviewSurface")
-    surf.CreateIdAttr("UsdPreviewSurface")
-    surf.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(LEAF_ROUGHNESS)
-    surf.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(0.0)
-    mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
-    if not texture:
-        surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*color))
-        return mat
-    reader = UsdShade.Shader.Define(stage, f"{path}/StReader")
-    reader.CreateIdAttr("UsdPrimvarReader_float2")
-    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-    reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-    tex = UsdShade.Shader.Define(stage, f"{path}/Texture")
-    tex.CreateIdAttr("UsdUVTexture")
-    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(texture))
-    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
-    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
-    tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
-    tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
-    tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
-    if tint:
-        tr = UsdShade.Shader.Define(stage, f"{path}/TintReader")
-        tr.CreateIdAttr("UsdPrimvarReader_float3")
-        tr.CreateInput("varname", Sdf.ValueTypeNames.String).Set(TINT_PRIMVAR)
-        tr.CreateInput("fallback", Sdf.ValueTypeNames.Float3).Set(Gf.Vec3f(1.0, 1.0, 1.0))
-        tr.CreateOutput("result", Sdf.ValueTypeNames.Float3)
-        tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).ConnectToSource(tr.ConnectableAPI(), "result")
-    surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
-    if has_alpha == "mask":
-        mask = UsdShade.Shader.Define(stage, f"{path}/Mask")
-        mask.CreateIdAttr("UsdUVTexture")
-        mask.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(mask_path(texture)))
-        mask.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
-        mask.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
-        mask.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
-        mask.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
-        mask.CreateOutput("r", Sdf.ValueTypeNames.Float)
-        surf.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(mask.ConnectableAPI(), "r")
-        surf.CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(0.5)
-    elif has_alpha:
-        tex.CreateOutput("a", Sdf.ValueTypeNames.Float)
-        surf.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(tex.ConnectableAPI(), "a")
-        surf.CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(0.5)
-    return mat
-
-
-def single_sheet(a: PlantAsset) -> bool:
-    """True when the template has faces on one side only: that sheet must be drawn doubleSided."""
-    sides = np.unique(_face_sides(a)) if len(a.template_faces) else np.zeros(0)
-    return len(sides) < 2
-
-
-def _face_sides(a: PlantAsset) -> np.ndarray:
-    """(F,) uint8 side of every template face (majority of its vertices)."""
-    return (a.template_side[a.template_faces].astype(np.int32).sum(1) >= 2).astype(np.uint8)
-
-
-def _author_template_mesh(stage, path: str, a: PlantAsset, looks: str):
-    from pxr import UsdGeom
-
-    mesh = UsdGeom.Mesh.Define(stage, path)
-    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-    mesh.CreateOrientationAttr(UsdGeom.Tokens.rightHanded)
-    mesh.CreateDoubleSidedAttr(single_sheet(a))
-    _set_template_geometry(mesh, a)
-    _bind_sides(stage, mesh, _face_sides(a), looks)
-    mesh.GetPrim().SetCustomDataByKey("leaffit:role", "template")
-    return mesh
-
-
-def _set_template_geometry(mesh, a) -> None:
-    """Points (drawn), topology, normals, st and leaffit:side of the template Mesh from ``a`` (a
-    PlantAsset or, for a level of detail, a copy carrying that level's template arrays)."""
-    from pxr import Sdf, UsdGeom, Vt
-
-    drawn = a.drawn_template_points()
-    mesh.CreatePointsAttr(vec3f_array(drawn))
-    mesh.CreateExtentAttr(extent(drawn))
-    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(a.template_faces), 3, np.int32)))
-    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(a.template_faces, np.int32).ravel()))
-    mesh.CreateNormalsAttr(vec3f_array(a.template_normals))
-    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
-    pv = UsdGeom.PrimvarsAPI(mesh)
-    st = pv.CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
-    st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(a.template_uvs, np.float32)))
-    side = pv.CreatePrimvar("leaffit:side", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex)
-    side.Set(Vt.IntArray.FromNumpy(np.asarray(a.template_side).astype(np.int32)))
-
-
-def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    c = np.clip(np.asarray(c, np.float64), 0.0, 1.0)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
-def stem_material_color(a: PlantAsset) -> tuple:
-    """Linear RGB of the stem material: the mean of the stem's vertex colours, else STEM_COLOR."""
-    if a.stem_colors is not None and len(a.stem_colors):
-        return tuple(float(x) for x in _srgb_to_linear(np.asarray(a.stem_colors)).mean(0))
-    return STEM_COLOR
-
-
-def _author_pot(stage, root: str, looks: str, pot) -> None:
-    """``Pot`` and ``Soil`` Meshes (``mesh.pot``; convert --pot), vertex-coloured, asset frame;
-    customData leaffit:role "pot" / "soil": never leaves or stem."""
-    from pxr import Sdf, UsdGeom, UsdShade, Vt
-
-    from leaffit_usd.geometry.normals import vertex_normals
-
-    for name, pts, faces, cols in (("Pot", pot.pot_points, pot.pot_faces, pot.pot_colors),
-                                   ("Soil", pot.soil_points, pot.soil_faces, pot.soil_colors)):
-        if not len(pts) or not len(faces):
-            continue
-        mesh = UsdGeom.Mesh.Define(stage, f"{root}/{name}")
-        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-        mesh.CreatePointsAttr(vec3f_array(pts))
-        mesh.CreateExtentAttr(extent(pts))
-        mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(faces), 3, np.int32)))
-        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(faces, np.int32).ravel()))
-        mesh.CreateNormalsAttr(vec3f_array(vertex_normals(pts, faces, undefined=(0.0, 0.0, 1.0))))
-        mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
-        lin = _srgb_to_linear(np.asarray(cols))
-        UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray,
-                                                UsdGeom.Tokens.vertex).Set(vec3f_array(lin))
-        mat = vertex_colour_material(stage, f"{looks}/{name}", tuple(float(x) for x in lin.mean(0)), True)
-        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
-        mesh.GetPrim().SetCustomDataByKey("leaffit:role", name.lower())
-
-
-def _author_wind(pv, w) -> None:
-    """The per-instance wind primvars of the leaves' PointInstancer (``usd.wind``): pivot (the
-    petiole base) and axis (base to apex), asset frame; the stem skeleton node each leaf hangs
-    from; its phase in [0, 1)."""
-    from pxr import Sdf, UsdGeom, Vt
-
-    pv.CreatePrimvar(WIND_PIVOT, Sdf.ValueTypeNames.Point3fArray, UsdGeom.Tokens.vertex).Set(vec3f_array(w.pivots))
-    pv.CreatePrimvar(WIND_AXIS, Sdf.ValueTypeNames.Vector3fArray, UsdGeom.Tokens.vertex).Set(vec3f_array(w.axes))
-    pv.CreatePrimvar(WIND_NODE, Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex).Set(
-        Vt.IntArray.FromNumpy(np.asarray(w.nodes, np.int32)))
-    pv.CreatePrimvar(WIND_PHASE, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex).Set(
-        Vt.FloatArray.FromNumpy(np.asarray(w.phases, np.float32)))
-
-
-def _author_stem_wind(mesh, a: PlantAsset, w) -> None:
-    """The stem's wind data: ``primvars:leaffit:windBend`` per vertex (the distance along the
-    skeleton from the root, 0..1) and the skeleton the leaves' ``windNode`` indexes (constant
-    primvars ``leaffit:skeletonPoints`` (asset frame) and ``leaffit:skeletonParents``)."""
-    from pxr import Sdf, UsdGeom, Vt
-
-    pv = UsdGeom.PrimvarsAPI(mesh)
-    pv.CreatePrimvar(WIND_BEND, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex).Set(
-        Vt.FloatArray.FromNumpy(np.asarray(w.stem_bend, np.float32)))
-    if a.skeleton_points is not None and len(a.skeleton_points):
-        pv.CreatePrimvar("leaffit:skeletonPoints", Sdf.ValueTypeNames.Point3fArray,
-                         UsdGeom.Tokens.constant).Set(vec3f_array(a.skeleton_points))
-        pv.CreatePrimvar("leaffit:skeletonParents", Sdf.ValueTypeNames.IntArray,
-                         UsdGeom.Tokens.constant).Set(Vt.IntArray.FromNumpy(np.asarray(a.skeleton_parents, np.int32)))
-
-
-def _set_stem_geometry(mesh, a: PlantAsset) -> None:
-    """Points, topology, smooth vertex normals and (when known) displayColor of the stem Mesh."""
-    from pxr import Sdf, UsdGeom, Vt
-
-    from leaffit_usd.geometry.normals import vertex_normals
-
-    mesh.CreatePointsAttr(vec3f_array(a.stem_points))
-    mesh.CreateExtentAttr(extent(a.stem_points))
-    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(a.stem_faces), 3, np.int32)))
-    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(a.stem_faces, np.int32).ravel()))
-    n = vertex_normals(a.stem_points, a.stem_faces, undefined=(0.0, 0.0, 1.0))
-    mesh.CreateNormalsAttr(vec3f_array(n))
-    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
-    if a.stem_colors is not None and len(a.stem_colors) == len(a.stem_points):
-        dc = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray,
-                                                     UsdGeom.Tokens.vertex)
-        dc.Set(vec3f_array(_srgb_to_linear(a.stem_colors)))
-
-
-def make_stem_material(stage, path: str, a: PlantAsset):
-    """UsdPreviewSurface whose diffuseColor reads the stem's vertex colours (primvar
-    displayColor, linear) with their mean as the fallback; a constant colour without them."""
-    return vertex_colour_material(stage, path, stem_material_color(a),
-                                  a.stem_colors is not None and len(a.stem_colors) > 0)
-
-
-def vertex_colour_material(stage, path: str, color: tuple, per_vertex: bool):
-    """UsdPreviewSurface of linear RGB ``color``; with ``per_vertex`` its diffuseColor reads the
-    mesh's displayColor primvar, ``color`` the fallback."""
-    from pxr import Gf, Sdf, UsdShade
-
-    mat = make_material(stage, path, None, color, False)
-    if not per_vertex:
-        return mat
-    surf = UsdShade.Shader(stage.GetPrimAtPath(f"{path}/PreviewSurface"))
-    reader = UsdShade.Shader.Define(stage, f"{path}/ColorReader")
-    reader.CreateIdAttr("UsdPrimvarReader_float3")
-    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("displayColor")
-    reader.CreateInput("fallback", Sdf.ValueTypeNames.Float3).Set(Gf.Vec3f(*color))
-    reader.CreateOutput("result", Sdf.ValueTypeNames.Float3)
-    surf.GetInput("diffuseColor").ConnectToSource(reader.ConnectableAPI(), "result")
-    return mat
-
-
-def _bind_sides(stage, mesh, face_side: np.ndarray, looks: str | None):
-    """GeomSubsets 'front'/'back' (family materialBind) and, if looks is given, their bindings."""
-    from pxr import UsdGeom, UsdShade, Vt
-
-    for side, name, mat in ((0, "front", "LeafFront"), (1, "back", "LeafBack")):
-        idx = np.flatnonzero(face_side == side).astype(np.int32)
-        sub = UsdGeom.Subset.CreateGeomSubset(mesh, name, UsdGeom.Tokens.face,
-                                              Vt.IntArray.FromNumpy(idx), "materialBind",
-                                              UsdGeom.Tokens.nonOverlapping)
-        if looks:
-            api = UsdShade.MaterialBindingAPI.Apply(sub.GetPrim())
-            api.Bind(UsdShade.Material(stage.GetPrimAtPath(f"{looks}/{mat}")))
-    UsdGeom.Subset.SetFamilyType(mesh, "materialBind", UsdGeom.Tokens.partition)
-
-
-def _stage_units(stage, a: PlantAsset) -> None:
-    from pxr import UsdGeom
-
-    up = str(a.metadata.get("up_axis", "Y")).upper()
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up == "Y" else UsdGeom.Tokens.z)
-    UsdGeom.SetStageMetersPerUnit(stage, float(a.metadata.get("meters_per_unit", 1.0)))
 
 
 def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, front_tex: str,
@@ -548,10 +288,10 @@ def _write_geometry_layer(geom_out: Path, main_name: str, a: PlantAsset, leaves:
     from pxr import Usd, UsdGeom, UsdShade
 
     stage = Usd.Stage.CreateNew(str(geom_out))
-    _stage_units(stage, a)
+    stage_units(stage, a)
     root = f"/{name}"
     stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, root).GetPrim())
-    tints = _tints(a)
+    tints = leaf_tints(a)
 
     looks = f"{root}/Looks"
     UsdGeom.Scope.Define(stage, looks)
@@ -566,12 +306,12 @@ def _write_geometry_layer(geom_out: Path, main_name: str, a: PlantAsset, leaves:
     if len(a.stem_points) and len(a.stem_faces):
         stem = UsdGeom.Mesh.Define(stage, f"{root}/Stem")
         stem.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-        _set_stem_geometry(stem, a)
-        _author_stem_wind(stem, a, wind)
+        set_stem_geometry(stem, a)
+        author_stem_wind(stem, a, wind)
         UsdShade.MaterialBindingAPI.Apply(stem.GetPrim()).Bind(stem_mat)
         stem.GetPrim().SetCustomDataByKey("leaffit:role", "stem")
     if a.pot is not None:
-        _author_pot(stage, root, looks, a.pot)
+        author_pot(stage, root, looks, a.pot)
 
     stage.GetRootLayer().documentation = (
         f"LeafFit plant geometry: the payload of ./{main_name} (open that file)")
@@ -588,7 +328,7 @@ def _author_leaf_instancer(stage, inst_path: str, a: PlantAsset, leaves: np.ndar
 
     inst = UsdGeom.PointInstancer.Define(stage, inst_path)
     UsdGeom.Scope.Define(stage, f"{inst_path}/Prototypes")
-    tmpl = _author_template_mesh(stage, f"{inst_path}/Prototypes/TemplateLeaf", a, looks)
+    tmpl = author_template_mesh(stage, f"{inst_path}/Prototypes/TemplateLeaf", a, looks)
     inst.CreatePrototypesRel().SetTargets([tmpl.GetPath()])
     L, K = a.n_leaves, len(a.template_controls)
     inst.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.zeros(L, np.int32)))
@@ -606,7 +346,7 @@ def _author_leaf_instancer(stage, inst_path: str, a: PlantAsset, leaves: np.ndar
     if tints is not None:
         pv.CreatePrimvar(TINT_PRIMVAR, Sdf.ValueTypeNames.Color3fArray,
                          UsdGeom.Tokens.vertex).Set(vec3f_array(tints))
-    _author_wind(pv, wind)
+    author_wind(pv, wind)
     inst.CreateExtentAttr(extent(leaves))
     ip = inst.GetPrim()
     ip.SetCustomDataByKey("leaffit:role", "leaves")
@@ -634,7 +374,7 @@ def _write_root_layer(out: Path, a: PlantAsset, name: str, geom_rel: str, baked_
 
     root = f"/{name}"
     stage = Usd.Stage.CreateNew(str(out))
-    _stage_units(stage, a)
+    stage_units(stage, a)
     plant = UsdGeom.Xform.Define(stage, root).GetPrim()
     stage.SetDefaultPrim(plant)
     Usd.ModelAPI(plant).SetKind(Kind.Tokens.component)
@@ -681,7 +421,7 @@ def _author_baked_variant(stage, plant, a: PlantAsset, root: str, baked_rel: str
         # PointInstancer next to other meshes; readers force the 'deformer' variant
         stage.OverridePrim(f"{root}/Leaves").SetActive(False)
         for k in range(len(a.lods) + 1 if baked_lods else 1):
-            topo = stage.OverridePrim(f"{root}/BakedLeaves/{_baked_topology(k)}")
+            topo = stage.OverridePrim(f"{root}/BakedLeaves/{baked_topology(k)}")
             for side, mat in (("front", "LeafFront"), ("back", "LeafBack")):
                 sub = stage.OverridePrim(f"{topo.GetPath()}/{side}")
                 UsdShade.MaterialBindingAPI.Apply(sub).Bind(
@@ -721,13 +461,13 @@ def _author_lod_variants(stage, plant, a: PlantAsset, tmpl, root: str, baked: bo
             # LOD0 is the geometry payload itself (payload opinions are weaker than variants')
             if k > 0:
                 mesh = UsdGeom.Mesh(stage.OverridePrim(tmpl.GetPath()))
-                _set_template_geometry(mesh, la)
-                sides = _face_sides(la)
+                set_template_geometry(mesh, la)
+                sides = face_sides(la)
                 for side, nm in ((0, "front"), (1, "back")):
                     sub = UsdGeom.Subset(stage.OverridePrim(tmpl.GetPath().AppendChild(nm)))
                     sub.CreateIndicesAttr(Vt.IntArray.FromNumpy(np.flatnonzero(sides == side).astype(np.int32)))
                 if len(a.stem_points) and len(la.stem_points):
-                    _set_stem_geometry(UsdGeom.Mesh(stage.OverridePrim(f"{root}/Stem")), la)
+                    set_stem_geometry(UsdGeom.Mesh(stage.OverridePrim(f"{root}/Stem")), la)
             if baked and k > 0:
                 rep = plant.GetVariantSets().AddVariantSet("leafRepresentation")
                 rep.AddVariant("baked")
@@ -749,11 +489,6 @@ _TEMPLATE_ATTRS = ("points", "extent", "faceVertexCounts", "faceVertexIndices", 
                    "primvars:st", "primvars:leaffit:side")
 _STEM_ATTRS = ("points", "extent", "faceVertexCounts", "faceVertexIndices", "normals",
                "primvars:displayColor")
-
-
-def _baked_topology(k: int) -> str:
-    """Name of the class prim holding the baked leaves' shared topology at level of detail k."""
-    return "LeafTopology" if k == 0 else f"LeafTopologyLOD{k}"
 
 
 def _attr(prim, name, type_name, value, uniform=False):
@@ -799,100 +534,6 @@ def _flat_params(params, prefix="") -> dict:
 
 # ----------------------------------------------------------------------------------------------
 # baked payload layer
-
-
-def _tints(a: PlantAsset) -> np.ndarray | None:
-    """(L, 3) float32 per-leaf tint, or None when the asset has none (or a wrong count)."""
-    t = getattr(a, "tints", None)
-    if t is None:
-        return None
-    t = np.asarray(t, np.float32).reshape(-1, 3)
-    return t if len(t) == a.n_leaves and np.isfinite(t).all() else None
-
-
-def set_leaf_tint(mesh, tint) -> None:
-    """Author one leaf Mesh's tint: ``primvars:leaffit:tint`` (read by the leaf materials) and
-    ``primvars:displayColor`` (what viewers without our materials, e.g. Blender's colour
-    attribute, show), both constant color3f, linear RGB."""
-    from pxr import Gf, Sdf, UsdGeom
-
-    c = Gf.Vec3f(*map(float, np.asarray(tint, np.float64).reshape(3)))
-    pv = UsdGeom.PrimvarsAPI(mesh)
-    pv.CreatePrimvar(TINT_PRIMVAR, Sdf.ValueTypeNames.Color3f, UsdGeom.Tokens.constant).Set(c)
-    UsdGeom.Gprim(mesh.GetPrim()).CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set([c])
-
-
-def write_baked_layer(out: Path, a: PlantAsset, leaves: np.ndarray, lod_leaves: list | None = None) -> None:
-    """The baked payload layer: one Mesh per leaf (asset frame), sharing topology/UVs/subsets
-    through an inherited class. leaves : (L, V, 3) as :func:`write_stage` takes them.
-
-    The class prim sits under the payload's root prim so the inherit arc is remapped when the
-    payload is loaded; material bindings are authored by the main layer's 'baked' variant.
-    """
-    from pxr import Usd, UsdGeom
-
-    leaves = _check_leaves(a, leaves)
-    stage = Usd.Stage.CreateNew(str(out))
-    _stage_units(stage, a)
-    root = UsdGeom.Xform.Define(stage, "/BakedLeaves")
-    stage.SetDefaultPrim(root.GetPrim())
-    topo_path = f"/BakedLeaves/{_baked_topology(0)}"
-    wind = wind_data(a)
-    _author_baked_topology(stage, topo_path, a, single_sheet(a))
-    _author_baked_leaves(stage, "/BakedLeaves", topo_path, leaves, a.leaf_labels, _tints(a), wind)
-    # coarser levels of detail: one inactive group each (the main layer's LOD variant
-    # deactivates the LOD0 leaves and activates its group)
-    for k, lod in enumerate(a.lods if lod_leaves else [], start=1):
-        la = a.at_lod(k)
-        lv = _check_leaves(la, lod_leaves[k - 1]).astype(np.float32)
-        tp = f"/BakedLeaves/{_baked_topology(k)}"
-        _author_baked_topology(stage, tp, la, False)
-        grp = UsdGeom.Xform.Define(stage, f"/BakedLeaves/LOD{k}")
-        _author_baked_leaves(stage, f"/BakedLeaves/LOD{k}", tp, lv, a.leaf_labels, None, wind)
-        grp.GetPrim().SetActive(False)
-    stage.GetRootLayer().Save()
-
-
-def _author_baked_topology(stage, path: str, a: PlantAsset, double_sided: bool) -> None:
-    """The class prim ``path`` the baked leaves of one level inherit: faces, st, side subsets."""
-    from pxr import Sdf, UsdGeom, Vt
-
-    topo = stage.CreateClassPrim(path)
-    topo.SetTypeName("Mesh")
-    mesh = UsdGeom.Mesh(topo)
-    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-    mesh.CreateDoubleSidedAttr(double_sided)
-    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(a.template_faces), 3, np.int32)))
-    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(a.template_faces, np.int32).ravel()))
-    st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
-    st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(a.template_uvs, np.float32)))
-    # leaf flutter per vertex, the same for every leaf (it follows the template: usd.wind)
-    UsdGeom.PrimvarsAPI(mesh).CreatePrimvar(WIND_FLUTTER, Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex).Set(
-        Vt.FloatArray.FromNumpy(template_flutter(a.template_points)))
-    _bind_sides(stage, mesh, _face_sides(a), None)
-
-
-def _author_baked_leaves(stage, parent: str, topo_path: str, leaves: np.ndarray, labels,
-                         tints, wind) -> None:
-    """``parent/leaf_0000`` ...: one Mesh per leaf inheriting ``topo_path``, with its points
-    ((L, V, 3) ``leaves``), extent, label ((L,) ``labels``), if given tint ((L, 3)), and its
-    wind (``usd.wind.WindData``: constant primvars pivot, axis, node, phase, bend)."""
-    from pxr import Gf, Sdf, UsdGeom
-
-    for j in range(len(leaves)):
-        leaf = UsdGeom.Mesh.Define(stage, f"{parent}/leaf_{j:04d}")
-        leaf.GetPrim().GetInherits().AddInherit(topo_path)
-        leaf.CreatePointsAttr(vec3f_array(leaves[j]))
-        leaf.CreateExtentAttr(extent(leaves[j]))
-        leaf.GetPrim().SetCustomDataByKey("leaffit:leafLabel", int(labels[j]))
-        if tints is not None:
-            set_leaf_tint(leaf, tints[j])
-        pv, c = UsdGeom.PrimvarsAPI(leaf), UsdGeom.Tokens.constant
-        pv.CreatePrimvar(WIND_PIVOT, Sdf.ValueTypeNames.Point3f, c).Set(Gf.Vec3f(*map(float, wind.pivots[j])))
-        pv.CreatePrimvar(WIND_AXIS, Sdf.ValueTypeNames.Vector3f, c).Set(Gf.Vec3f(*map(float, wind.axes[j])))
-        pv.CreatePrimvar(WIND_NODE, Sdf.ValueTypeNames.Int, c).Set(int(wind.nodes[j]))
-        pv.CreatePrimvar(WIND_PHASE, Sdf.ValueTypeNames.Float, c).Set(float(wind.phases[j]))
-        pv.CreatePrimvar(WIND_BEND, Sdf.ValueTypeNames.Float, c).Set(float(wind.leaf_bend[j]))
 
 
 # ----------------------------------------------------------------------------------------------
