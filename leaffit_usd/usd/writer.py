@@ -22,7 +22,6 @@ into place only when all of them were written; the stage file itself is moved la
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 import shutil
@@ -34,16 +33,14 @@ import numpy as np
 
 from leaffit_usd.errors import ParameterError
 from leaffit_usd.usd import schema as S
-from leaffit_usd.version import __version__
 from leaffit_usd.usd.asset import PlantAsset
-from leaffit_usd.usd.vt import extent, matrix4d, quat_arrays, vec3f_array
-from leaffit_usd.usd.baked import (baked_topology, leaf_tints, set_leaf_tint,  # noqa: F401 (API)
-                                   write_baked_layer)
+from leaffit_usd.usd.vt import extent, quat_arrays, vec3f_array
+from leaffit_usd.usd.baked import leaf_tints, set_leaf_tint, write_baked_layer  # noqa: F401 (API)
 from leaffit_usd.usd.materials import (MASK_SUFFIX, STEM_COLOR, TINT_PRIMVAR,  # noqa: F401 (API)
                                        make_material, make_stem_material, mask_path)
 from leaffit_usd.usd.parts import (author_pot, author_stem_wind, author_template_mesh, author_wind,
-                                   check_leaves, face_sides, set_stem_geometry, set_template_geometry,
-                                   stage_units)
+                                   check_leaves, set_stem_geometry, stage_units)
+from leaffit_usd.usd.root_layer import write_root_layer
 from leaffit_usd.usd.wind import wind_data
 
 log = logging.getLogger("leaffit_usd")
@@ -265,8 +262,6 @@ def _write_texture(path: Path, img: np.ndarray, options: WriteOptions) -> None:
 # main layer
 
 
-
-
 def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, front_tex: str,
                       back_tex: str, has_alpha: str, baked_rel: str | None, baked_lods: bool,
                       geom_out: Path, geom_rel: str, variants_rel: str | None = None) -> None:
@@ -277,7 +272,7 @@ def _write_main_layer(out: Path, a: PlantAsset, leaves: np.ndarray, name: str, f
     # the geometry stage stays open while the root layer refers to its template Mesh
     geo, tmpl = _write_geometry_layer(geom_out, out.name, a, leaves, name, front_tex, back_tex,
                                       has_alpha)
-    _write_root_layer(out, a, name, geom_rel, baked_rel, baked_lods, tmpl, variants_rel)
+    write_root_layer(out, a, name, geom_rel, baked_rel, baked_lods, tmpl, variants_rel)
     del geo
 
 
@@ -364,172 +359,12 @@ def _author_leaf_instancer(stage, inst_path: str, a: PlantAsset, leaves: np.ndar
     return tmpl
 
 
-def _write_root_layer(out: Path, a: PlantAsset, name: str, geom_rel: str, baked_rel: str | None,
-                      baked_lods: bool, tmpl, variants_rel: str | None = None) -> None:
-    """The root layer ``out``: the asset's interface; the geometry arrives through the payload
-    ``geom_rel``; the leafRepresentation and LOD variant sets. tmpl : the template leaf Mesh of
-    the geometry layer. variants_rel : author the variant sets in this crate sublayer (beside
-    ``out``) instead of the root layer: a .usda root stays a small, readable text file."""
-    from pxr import Kind, Sdf, Usd, UsdGeom
-
-    root = f"/{name}"
-    stage = Usd.Stage.CreateNew(str(out))
-    stage_units(stage, a)
-    plant = UsdGeom.Xform.Define(stage, root).GetPrim()
-    stage.SetDefaultPrim(plant)
-    Usd.ModelAPI(plant).SetKind(Kind.Tokens.component)
-    Usd.ModelAPI(plant).SetAssetName(name)
-    Usd.ModelAPI(plant).SetAssetVersion(str(a.metadata.get("tool_version", __version__)))
-    Usd.ModelAPI(plant).SetAssetIdentifier(Sdf.AssetPath(f"./{out.name}"))
-    plant.SetCustomDataByKey("leaffit", _custom_data(a))
-    plant.GetPayloads().AddPayload(geom_rel)
-    vlayer = None
-    if variants_rel:
-        vlayer = Sdf.Layer.CreateNew(str(out.parent / variants_rel))
-        stage.GetRootLayer().subLayerPaths.append("./" + variants_rel)
-        stage.SetEditTarget(Usd.EditTarget(vlayer))
-    if baked_rel:
-        _author_baked_variant(stage, plant, a, root, baked_rel, baked_lods)
-    if a.lods:
-        _author_lod_variants(stage, plant, a, tmpl, root, bool(baked_rel) and baked_lods)
-    if vlayer is not None:
-        vlayer.documentation = f"LeafFit plant variants (LOD, leafRepresentation) of ./{out.name}"
-        vlayer.Save()
-        stage.SetEditTarget(Usd.EditTarget(stage.GetRootLayer()))
-    stage.GetRootLayer().documentation = (
-        "LeafFit plant: one template leaf Mesh deformed per instance by affine MLS "
-        "(LeafFitMLSDeformerAPI); written by leaffit-usd")
-    stage.GetRootLayer().Save()
-
-
-def _author_baked_variant(stage, plant, a: PlantAsset, root: str, baked_rel: str,
-                          baked_lods: bool) -> None:
-    """Variant set ``leafRepresentation`` (deformer, the default | baked): explicit leaves for
-    tools without the deformer, a variant whose geometry is the payload file ``baked_rel``."""
-    from pxr import UsdGeom, UsdShade
-
-    looks = f"{root}/Looks"
-    vset = plant.GetVariantSets().AddVariantSet("leafRepresentation")
-    vset.AddVariant("deformer")
-    vset.AddVariant("baked")
-    vset.SetVariantSelection("baked")
-    with vset.GetVariantEditContext():
-        baked = UsdGeom.Xform.Define(stage, f"{root}/BakedLeaves")
-        baked.GetPrim().GetPayloads().AddPayload(baked_rel)
-        baked.GetPrim().SetCustomDataByKey("leaffit:role", "baked")
-        # deactivate (not hide) the instancer: Blender 4.2 crashes importing an invisible
-        # PointInstancer next to other meshes; readers force the 'deformer' variant
-        stage.OverridePrim(f"{root}/Leaves").SetActive(False)
-        for k in range(len(a.lods) + 1 if baked_lods else 1):
-            topo = stage.OverridePrim(f"{root}/BakedLeaves/{baked_topology(k)}")
-            for side, mat in (("front", "LeafFront"), ("back", "LeafBack")):
-                sub = stage.OverridePrim(f"{topo.GetPath()}/{side}")
-                UsdShade.MaterialBindingAPI.Apply(sub).Bind(
-                    UsdShade.Material(stage.GetPrimAtPath(f"{looks}/{mat}")))
-    vset.SetVariantSelection("deformer")
-
-
-def _author_lod_variants(stage, plant, a: PlantAsset, tmpl, root: str, baked: bool) -> None:
-    """Variant set ``LOD`` on the plant: LOD0 (default) is the geometry authored above; LODk
-    overrides the template Mesh (points, topology, normals, st, side subsets) and the stem Mesh
-    with level k's arrays. With the baked representation, a nested ``leafRepresentation``
-    variant inside LODk switches the payload's leaves to its LODk group."""
-    from pxr import Sdf, Usd, UsdGeom, Vt
-
-    # local opinions are stronger than variant opinions: LOD0's geometry moves into its variant
-    layer = stage.GetEditTarget().GetLayer()
-    tpath = tmpl.GetPath()
-    varying = {tpath: _TEMPLATE_ATTRS, tpath.AppendChild("front"): ("indices",),
-               tpath.AppendChild("back"): ("indices",)}
-    if len(a.stem_points):
-        varying[plant.GetPath().AppendChild("Stem")] = _STEM_ATTRS
-    for path, attrs in varying.items():
-        spec = layer.GetPrimAtPath(path)
-        for nm in attrs:
-            if spec is not None and nm in spec.properties:
-                spec.RemoveProperty(spec.properties[nm])
-    # LOD first: its nested overs must be stronger than the leafRepresentation subtree (whose
-    # payload keeps the coarser groups inactive)
-    vset = plant.GetVariantSets().AddVariantSet("LOD", Usd.ListPositionFrontOfPrependList)
-    names = [f"LOD{k}" for k in range(len(a.lods) + 1)]
-    for nm in names:
-        vset.AddVariant(nm)
-    for k, lod in enumerate([None] + list(a.lods)):
-        la = a.at_lod(k)
-        vset.SetVariantSelection(names[k])
-        with vset.GetVariantEditContext():
-            # LOD0 is the geometry payload itself (payload opinions are weaker than variants')
-            if k > 0:
-                mesh = UsdGeom.Mesh(stage.OverridePrim(tmpl.GetPath()))
-                set_template_geometry(mesh, la)
-                sides = face_sides(la)
-                for side, nm in ((0, "front"), (1, "back")):
-                    sub = UsdGeom.Subset(stage.OverridePrim(tmpl.GetPath().AppendChild(nm)))
-                    sub.CreateIndicesAttr(Vt.IntArray.FromNumpy(np.flatnonzero(sides == side).astype(np.int32)))
-                if len(a.stem_points) and len(la.stem_points):
-                    set_stem_geometry(UsdGeom.Mesh(stage.OverridePrim(f"{root}/Stem")), la)
-            if baked and k > 0:
-                rep = plant.GetVariantSets().AddVariantSet("leafRepresentation")
-                rep.AddVariant("baked")
-        if baked and k > 0:
-            # edit /Plant{LOD=LODk}{leafRepresentation=baked} explicitly: a variant edit context
-            # would follow the composed selection ('deformer')
-            nested = Sdf.Path(f"{root}{{LOD={names[k]}}}{{leafRepresentation=baked}}BakedLeaves")
-            for j in range(a.n_leaves):
-                Sdf.CreatePrimInLayer(layer, nested.AppendChild(f"leaf_{j:04d}")).active = False
-            Sdf.CreatePrimInLayer(layer, nested.AppendChild(names[k])).active = True
-    vset.SetVariantSelection(names[0])
-    spec = layer.GetPrimAtPath(plant.GetPath())
-    order = list(spec.variantSetNameList.prependedItems)
-    if "LOD" in order:
-        spec.variantSetNameList.prependedItems = ["LOD"] + [n for n in order if n != "LOD"]
-
-
-_TEMPLATE_ATTRS = ("points", "extent", "faceVertexCounts", "faceVertexIndices", "normals",
-                   "primvars:st", "primvars:leaffit:side")
-_STEM_ATTRS = ("points", "extent", "faceVertexCounts", "faceVertexIndices", "normals",
-               "primvars:displayColor")
-
-
 def _attr(prim, name, type_name, value, uniform=False):
     from pxr import Sdf
     a = prim.CreateAttribute(name, type_name, custom=False,
                              variability=Sdf.VariabilityUniform if uniform else Sdf.VariabilityVarying)
     a.Set(value)
     return a
-
-
-def _custom_data(a: PlantAsset) -> dict:
-    md = a.metadata or {}
-    params = md.get("params", {})
-    return {
-        "toolVersion": str(md.get("tool_version", __version__)),
-        "inputSha256": str(md.get("input_sha256", "")),
-        "assetToInput": matrix4d(a.asset_to_input),
-        "params": _flat_params(params),
-        "metadataJson": json.dumps(md, sort_keys=True, allow_nan=True),
-    }
-
-
-def _flat_params(params, prefix="") -> dict:
-    """Nested parameter dicts -> a USD dictionary of scalars (lists become JSON strings)."""
-    out = {}
-    for k, v in (params or {}).items():
-        if isinstance(v, dict):
-            out[str(k)] = _flat_params(v)
-        elif isinstance(v, bool):
-            out[str(k)] = bool(v)
-        elif isinstance(v, int):
-            out[str(k)] = int(v)
-        elif isinstance(v, float):
-            out[str(k)] = float(v)
-        elif v is None:
-            out[str(k)] = "None"
-        elif isinstance(v, str):
-            out[str(k)] = v
-        else:
-            out[str(k)] = json.dumps(v)
-    return out
 
 
 # ----------------------------------------------------------------------------------------------
