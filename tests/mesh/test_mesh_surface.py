@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from leaffit_usd.geometry.sampling import farthest_point_sampling
+from leaffit_usd.mesh import sheet_topology
 from leaffit_usd.mesh import surface as S
 
 
@@ -95,15 +96,15 @@ def test_repairs_remove_nonmanifold_edges_and_islands():
     p2 = np.concatenate([p, extra])
     n = len(p)
     f2 = np.concatenate([f, [[0, 7, n]], [[n + 1, n + 2, n + 3]]])
-    f2 = S._fix_nonmanifold_edges(p2, f2)
+    f2 = S.fix_nonmanifold_edges(p2, f2)
     assert S.sheet_checks(p2, f2)["nonmanifold_edges"] == 0
-    f3, removed = S._largest_component(p2, f2)
+    f3, removed = S.largest_component(p2, f2)
     assert removed >= 1 and f3.max() < n + 1
 
 
 def test_ear_clip_concave_polygon():
     poly = np.array([[0, 0], [4, 0], [4, 4], [2, 1.5], [0, 4]], float)
-    tris = S._ear_clip(poly)
+    tris = sheet_topology._ear_clip(poly)
     assert len(tris) == 3
     area = sum(0.5 * cross2(poly[b] - poly[a], poly[c] - poly[a]) for a, b, c in tris)
     assert area == pytest.approx(S.signed_area_xy(poly))

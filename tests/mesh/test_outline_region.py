@@ -2,6 +2,7 @@
 (leaffit_usd.mesh.outline_fit.silhouette_outline), not vertex by vertex along the normals."""
 import numpy as np
 
+from leaffit_usd.mesh import sheet_remesh
 from leaffit_usd.mesh import surface as surf
 from leaffit_usd.mesh.outline_fit import mask_outline, polygon_mask, silhouette_outline
 
@@ -69,7 +70,7 @@ def test_notched_outline_grows_all_round_and_fills_the_notch():
     # the notch is filled: points inside it are inside the grown outline
     loop = surf.boundary_loops(np.asarray(grown.faces), len(grown.points))
     ring = xy[max(loop, key=len)]
-    assert surf._points_in_polygon(np.array([[0.5, 0.9], [0.5, 0.5]]), ring).all()
+    assert sheet_remesh._points_in_polygon(np.array([[0.5, 0.9], [0.5, 0.5]]), ring).all()
     # heights off the old sheet continue its plane (z = 0.1 x)
     assert np.abs(np.asarray(grown.points)[:, 2] - 0.1 * xy[:, 0]).max() < 1e-6
 
