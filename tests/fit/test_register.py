@@ -399,7 +399,7 @@ def test_apex_landmark_moves_to_the_blade_edge():
     """The segmentation's apex (a subsample point inside the tip) walks out to the blade's tip;
     one at the tip stays near it; a tip curled back keeps its end (not the bend, farther from the base);
     too few points near it leave it alone."""
-    from leaffit_usd.fit.register import _apex_at_blade_edge
+    from leaffit_usd.fit.leaf_ends import apex_at_blade_edge as _apex_at_blade_edge
 
     rng = np.random.default_rng(0)
     P = _tip_blade(rng)
