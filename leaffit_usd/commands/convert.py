@@ -29,7 +29,7 @@ def add_arguments(p) -> None:
 
     add_input_argument(p)
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output stage (.usda, .usdc, .usd or .usdz) or glTF (.glb, .gltf)")
-    p.add_argument("--report", metavar="R.json", help="write timings, counts, sizes and fit errors as JSON")
+    p.add_argument("--report", metavar="R.json", help="write timings, counts, sizes (each file, and each prim's share of the stage's data) and fit errors as JSON")
     add_options(p)
 
 
