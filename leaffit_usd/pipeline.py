@@ -248,9 +248,6 @@ def convert(input_path, output_path, options: ConvertOptions | None = None) -> d
     report["tint"] = None if tints is None else {
         "per_leaf": np.round(tints.tints, 4).tolist(), "samples": tints.samples.tolist(),
         "space": "linear RGB gain on the template texture"}
-    if output_path.suffix.lower() in (".usda", ".usdc", ".usd", ".usdz"):
-        from leaffit_usd.usd.prim_sizes import prim_data_sizes
-        report["sizes"]["prims"] = prim_data_sizes(output_path)   # what each byte is for
     all_bytes = report["sizes"]["output_with_sidecars_bytes"]
     log.info("wrote %s (%d file(s), %.1f KB; input %.1f KB, ratio %.1fx) in %.1f s", output_path,
              len(result.files), all_bytes / 1024, report["sizes"]["input_bytes"] / 1024,

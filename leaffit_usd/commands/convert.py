@@ -144,5 +144,8 @@ def run(args) -> int:
         raise ParameterError("--report", "a .json path", args.report)
     report = convert(args.input, args.output, options_from_args(args))
     if args.report:
+        if Path(args.output).suffix.lower() in (".usda", ".usdc", ".usd", ".usdz"):
+            from leaffit_usd.usd.prim_sizes import prim_data_sizes
+            report["sizes"]["prims"] = prim_data_sizes(args.output)   # what each byte is for
         atomic_write_bytes(args.report, (json.dumps(report, indent=2) + "\n").encode())
     return 0

@@ -24,3 +24,17 @@ def test_the_template_stem_and_instancer_hold_the_data(tmp_path):
     # the template's points are counted: 12 bytes a vertex at least
     tmpl = next(p for p in r["prims"] if p["path"].endswith("/TemplateLeaf"))
     assert tmpl["bytes"] >= 12 * len(np.asarray(asset.template_points))
+
+
+def test_convert_report_lists_the_prims(tmp_path):
+    import json
+
+    from leaffit_usd.cli import main
+    from samples import PLANTS_DIR, ensure_plants
+
+    ensure_plants()
+    out, rep = tmp_path / "p.usdz", tmp_path / "r.json"
+    assert main(["convert", str(PLANTS_DIR / "pothos_sh3.ply"), "-o", str(out), "--report", str(rep),
+                 "-q", "--steps", "0", "--refine", "1"]) == 0
+    prims = json.loads(rep.read_text())["sizes"]["prims"]
+    assert prims["total_bytes"] > 0 and any(p["path"].endswith("/TemplateLeaf") for p in prims["prims"])
