@@ -144,24 +144,29 @@ def class_scores(gt_class, pred_class, names) -> dict:
     return out
 
 
+def baked_vertices(stage, npz) -> np.ndarray:
+    """(N, 3) float64: the asset's leaf and stem vertices, input frame (``bake`` to ``npz``)."""
+    from leaffit_usd.commands.bake import bake
+
+    bake(stage, npz)
+    z = np.load(npz)
+    verts = [z["vertices"]]
+    if "stem_vertices" in z.files and len(z["stem_vertices"]):
+        verts.append(z["stem_vertices"])
+    return np.concatenate(verts).astype(np.float64)
+
+
 def asset_outside(scene_path, gt_labels, gt_plant_pts, height, workdir) -> dict:
     """convert with no options, bake (input frame), distance of asset vertices from the plant."""
     from scipy.spatial import cKDTree
 
-    from leaffit_usd.commands.bake import bake
     from leaffit_usd.pipeline import convert
 
     out = Path(workdir) / "asset.usda"
     t0 = time.perf_counter()
     rep = convert(scene_path, out)
     t_conv = time.perf_counter() - t0
-    npz = Path(workdir) / "leaves.npz"
-    bake(out, npz)
-    z = np.load(npz)
-    verts = [z["vertices"]]
-    if "stem_vertices" in z.files and len(z["stem_vertices"]):
-        verts.append(z["stem_vertices"])
-    v = np.concatenate(verts).astype(np.float64)
+    v = baked_vertices(out, Path(workdir) / "leaves.npz")
     d, _ = cKDTree(gt_plant_pts).query(v, k=1)
     d = d / height
     return {"convert_s": round(t_conv, 1), "leaves": rep["counts"]["leaves"],

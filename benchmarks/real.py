@@ -51,20 +51,15 @@ TARGETS = {"up_error_deg": 10.0, "below_soil_share": 0.01, "leaf_count_error": 3
 
 def convert_houseplant(workdir: Path, pot: bool = False) -> dict:
     """convert with no options (or only --pot), bake; the figures of the module docstring."""
-    from leaffit_usd.commands.bake import bake
+    from benchmarks.isolation import baked_vertices
     from leaffit_usd.pipeline import ConvertOptions, convert
 
     out = workdir / "houseplant.usdz"
     t0 = time.perf_counter()
     rep = convert(HOUSEPLANT, out, ConvertOptions(pot=pot))
     wall = time.perf_counter() - t0
-    npz = workdir / "houseplant_leaves.npz"
-    bake(out, npz)
-    z = np.load(npz)
-    verts = [z["vertices"]]
-    if "stem_vertices" in z.files and len(z["stem_vertices"]):
-        verts.append(z["stem_vertices"])
-    v = np.concatenate(verts).astype(np.float64)
+    v = baked_vertices(out, workdir / "houseplant_leaves.npz")
+    z = np.load(workdir / "houseplant_leaves.npz")
     up = np.asarray(rep["frame"]["up"], np.float64)
     err = float(np.degrees(np.arccos(np.clip(up @ TRUE_UP / np.linalg.norm(up), -1, 1))))
     iso = rep["isolation"]

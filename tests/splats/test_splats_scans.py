@@ -12,7 +12,7 @@ import numpy as np
 import plyfile
 import pytest
 
-from leaffit_usd.cli import main
+from tests.test_cli_negative_args import run  # the CLI run helper (exit code, stdout, stderr)
 from leaffit_usd.errors import InputFileError
 from leaffit_usd.splats import FORMAT_NAMES, detect_format, load_cloud, read_ply
 from leaffit_usd.splats.points import MIN_POINTS
@@ -26,15 +26,6 @@ def sheet(n=N, seed=0):
     """(n, 3) float64 points on a flat 1 x 0.6 sheet at z = 0.3, in random order."""
     r = np.random.default_rng(seed)
     return np.c_[r.uniform(0, 1, n), r.uniform(0, 0.6, n), np.full(n, 0.3)]
-
-
-def run(capsys, *argv):
-    try:
-        code = main(list(map(str, argv)))
-    except SystemExit as e:
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def assert_flat(cloud):
